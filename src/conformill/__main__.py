@@ -1,0 +1,3 @@
+from conformill.cli.main import main_exit
+
+main_exit()

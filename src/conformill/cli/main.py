@@ -1,0 +1,75 @@
+"""``conformill`` entry point: dispatches to one module per subcommand.
+
+Each subcommand module defines ``add_arguments(parser)`` and ``run(args) -> int``.
+Errors of type :class:`conformill.errors.ConformillError` become one line on stderr and
+their exit code (2 bad input, 3 plan that cannot be met); no traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+
+from conformill import __version__
+from conformill.errors import ConformillError
+
+#: subcommand -> (module, one-line help)
+SUBCOMMANDS = {
+    "param": ("conformill.cli.param", "conformal parameterization of a disk mesh"),
+    "plan": ("conformill.cli.plan", "plan a ball-end finishing program (G-code)"),
+    "verify": ("conformill.cli.verify", "simulate a G-code program on a mesh and check it"),
+    "view": ("conformill.cli.view", "write a self-contained HTML 3D view of a mesh and program"),
+}
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse that reports usage errors with exit code 2 (its default) on one line."""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="conformill", description="CNC finishing tool paths for triangle meshes from a conformal parameterization.")
+    parser.add_argument("--version", action="version", version=f"conformill {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+    for name, (modname, help_) in SUBCOMMANDS.items():
+        p = sub.add_parser(name, help=help_, description=help_)
+        p.add_argument("-q", "--quiet", action="store_true", help="no progress bars or summary")
+        p.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
+        mod = importlib.import_module(modname)
+        mod.add_arguments(p)
+        p.set_defaults(_module=mod)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the command line; returns the exit code (never calls ``sys.exit``)."""
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # argparse usage error or --help/--version
+        return int(exc.code or 0)
+    logging.basicConfig(
+        level=logging.DEBUG if args.verbose else logging.WARNING,
+        format="conformill: %(levelname)s: %(message)s",
+    )
+    try:
+        return int(args._module.run(args))
+    except ConformillError as exc:
+        print(f"conformill {args.command}: error: {exc}", file=sys.stderr)
+        return exc.exit_code
+    except KeyboardInterrupt:
+        print("conformill: interrupted", file=sys.stderr)
+        return 130
+    except MemoryError:
+        print(f"conformill {args.command}: error: out of memory", file=sys.stderr)
+        return 2
+
+
+def main_exit() -> None:  # console-script entry
+    sys.exit(main())
+
+
+if __name__ == "__main__":
+    main_exit()

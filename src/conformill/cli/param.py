@@ -1,0 +1,11 @@
+"""`conformill param` (being written)."""
+
+from conformill.errors import ConformillError
+
+
+def add_arguments(parser):
+    pass
+
+
+def run(args) -> int:
+    raise ConformillError("param is not implemented yet")

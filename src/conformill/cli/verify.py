@@ -1,0 +1,11 @@
+"""`conformill verify` (being written)."""
+
+from conformill.errors import ConformillError
+
+
+def add_arguments(parser):
+    pass
+
+
+def run(args) -> int:
+    raise ConformillError("verify is not implemented yet")

@@ -1,0 +1,1 @@
+"""Mesh stage: reading (io), topology (boundary loops, Euler characteristic), validation."""

@@ -1,0 +1,1 @@
+"""Writers: G-code, JSON report, PNG figures, HTML viewer. All write atomically."""

@@ -165,3 +165,69 @@ class ToolPath:
     passes: list
     safe_z: float
     pass_ids: list = field(default_factory=list)
+
+
+@dataclass(frozen=True, eq=False)
+class DomainPath:
+    """One planned path in the parameter domain, densely sampled (METHOD section 5).
+
+    Attributes
+    ----------
+    uv : (k, 2) float64
+        Dense domain samples, in cutting order.
+    closed : bool
+        A ring (contour): the last sample equals the first.
+    offset : float
+        The family parameter of the path (u for zigzag, rho for contour rings; for a
+        spiral revolution, the inner ring's rho).
+    side_allowed : (k,) float64
+        Allowed side interval l_s (mm) at each sample, from the scallop height and the
+        curvature across the path.
+    side_realised : (k,) float64
+        3D distance (mm) from each sample to the next path (NaN on the last path).
+    side_predicted : (k,) float64
+        The side interval the metric predicts for the domain step actually taken,
+        ``|r_a| sin(phi) * ds`` (METHOD section 6's ``l_s'``); NaN on the last path.
+    """
+
+    uv: np.ndarray
+    closed: bool
+    offset: float
+    side_allowed: np.ndarray
+    side_realised: np.ndarray
+    side_predicted: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class DomainPaths:
+    """The paths of one pattern in the domain, in machining order."""
+
+    pattern: str
+    paths: list  # list[DomainPath]
+    shrink_iterations: int = 0
+
+
+@dataclass(frozen=True, eq=False)
+class PlanResult:
+    """Everything a plan produced: the program, its geometry and its figures.
+
+    Attributes
+    ----------
+    toolpath : ToolPath
+        Tool-tip passes (what the G-code holds).
+    param : Parameterization
+    domain_paths : DomainPaths
+    cc_paths : list of (k, 3) float64
+        Cutter-contact points per planned path (after forward stepping).
+    mesh : Mesh
+        The mesh as planned (after orientation and scale).
+    report : dict
+        Figures for the JSON report (counts, lengths, steps, error analysis, timings).
+    """
+
+    toolpath: ToolPath
+    param: Parameterization
+    domain_paths: DomainPaths
+    cc_paths: list
+    mesh: Mesh
+    report: dict

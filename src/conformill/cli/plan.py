@@ -1,11 +1,150 @@
-"""`conformill plan` (being written)."""
+"""``conformill plan``: a ball-end finishing program for a disk mesh."""
 
-from conformill.errors import ConformillError
+from __future__ import annotations
+
+import sys
+import time
+
+from conformill.errors import PlanningError
 
 
-def add_arguments(parser):
-    pass
+def add_arguments(p) -> None:
+    p.add_argument("mesh", help="mesh file (STL, OBJ, PLY, OFF) or sample:NAME")
+    p.add_argument("--pattern", choices=["zigzag", "contour", "spiral"], default="spiral")
+    p.add_argument("--tool-radius", type=float, required=True, metavar="R", help="ball radius, mm")
+    p.add_argument("--scallop", type=float, required=True, metavar="H", help="scallop height, mm")
+    p.add_argument("--tolerance", type=float, default=0.01, metavar="E", help="chord deviation, mm (0.01)")
+    p.add_argument("--feed", type=float, default=1000.0, metavar="F", help="cutting feed, mm/min (1000)")
+    p.add_argument("--plunge-feed", type=float, default=None, metavar="F", help="plunge feed (feed/3)")
+    p.add_argument("--spindle", type=float, default=None, metavar="RPM", help="spindle speed (M3 S...)")
+    p.add_argument("--safe-z", type=float, default=None, metavar="Z", help="rapid height (part top + 5)")
+    p.add_argument("--scale", type=float, default=1.0, metavar="S", help="multiply coordinates (to mm)")
+    p.add_argument("--orient", choices=["none", "auto"], default="none",
+                   help="auto: turn the part so its mean normal is +Z")
+    p.add_argument("--weights", default="geodesic", choices=["geodesic", "floater", "mean_value", "cotangent"])
+    p.add_argument("--corners", default=None, metavar="i,j,k,l", help="rectangle corners (zigzag)")
+    p.add_argument("--max-step", type=float, default=10.0, metavar="L", help="longest forward step, mm (10)")
+    p.add_argument("--threads", type=int, default=None, metavar="N", help="threads for parallel stages (all)")
+    p.add_argument("-o", "--output", required=True, metavar="OUT.nc")
+    p.add_argument("--report", default=None, metavar="OUT.json")
+    p.add_argument("--plot", default=None, metavar="OUT.png")
+    p.add_argument("--html", default=None, metavar="OUT.html", help="self-contained 3D viewer")
+    p.add_argument("--verify", action="store_true", help="simulate the program and add the figures to the report")
+
+
+def _corners(text):
+    if text is None:
+        return None
+    try:
+        c = tuple(int(x) for x in text.split(","))
+    except ValueError:
+        raise PlanningError(f"--corners must be four vertex ids like 0,10,20,30, got {text!r}") from None
+    if len(c) != 4:
+        raise PlanningError(f"--corners needs four vertex ids, got {len(c)}")
+    return c
 
 
 def run(args) -> int:
-    raise ConformillError("plan is not implemented yet")
+    from conformill.cli.progress import StageProgress
+    from conformill.mesh.io import read_mesh
+    from conformill.output.atomic import check_writable
+    from conformill.output.gcode import write_gcode
+    from conformill.output.report import write_json
+    from conformill.pipeline import Job, plan
+
+    check_writable(args.output, args.report, args.plot, args.html)
+    if args.threads is not None:
+        if args.threads < 1:
+            raise PlanningError(f"--threads must be at least 1, got {args.threads}")
+        import numba
+
+        numba.set_num_threads(min(args.threads, numba.config.NUMBA_NUM_THREADS))
+    job = Job(pattern=args.pattern, tool_radius=args.tool_radius, scallop=args.scallop, tolerance=args.tolerance,
+              feed=args.feed, plunge_feed=args.plunge_feed, safe_z=args.safe_z, orient=args.orient,
+              weights=args.weights, corners=_corners(args.corners), max_step=args.max_step, spindle=args.spindle)
+    from conformill.pipeline import check_job
+
+    check_job(job)
+    t0 = time.perf_counter()
+    t = time.perf_counter()
+    mesh = read_mesh(args.mesh, scale=args.scale)
+    t_read = time.perf_counter() - t
+    progress = StageProgress(enabled=not args.quiet)
+    try:
+        result = plan(mesh, job, progress=progress)
+    finally:
+        progress.close()
+    report = result.report
+    report["timings_s"]["read"] = t_read
+    header = {
+        "mesh": args.mesh, "pattern": job.pattern, "tool": f"ball R{job.tool_radius:g} (D{2 * job.tool_radius:g})",
+        "scallop": job.scallop, "tolerance": job.tolerance, "feed": job.feed,
+        "plunge_feed": job.plunge_feed or job.feed / 3, "safe_z": round(result.toolpath.safe_z, 4),
+        "scale": args.scale, "orient": job.orient, "weights": job.weights,
+        "programmed point": "tool tip", "units": "mm",
+    }
+    t = time.perf_counter()
+    stats = write_gcode(args.output, result.toolpath, feed=job.feed, plunge_feed=job.plunge_feed,
+                        spindle=job.spindle, header=header)
+    report["timings_s"]["gcode"] = time.perf_counter() - t
+    report["program"] = stats
+    if args.plot:
+        from conformill.output.plot_plan import plot_plan
+
+        t = time.perf_counter()
+        plot_plan(args.plot, result)
+        report["timings_s"]["plot"] = time.perf_counter() - t
+    if args.verify:
+        from conformill.cli.verify import verify_program
+
+        t = time.perf_counter()
+        report["verify"] = verify_program(result.mesh, args.output, job.tool_radius, scallop=job.scallop,
+                                          gouge=job.tolerance, quiet=args.quiet)
+        report["timings_s"]["verify"] = time.perf_counter() - t
+    if args.html:
+        from conformill.output.viewer import write_viewer
+
+        t = time.perf_counter()
+        write_viewer(args.html, result.mesh.V, result.mesh.F, result.toolpath.passes,
+                     title=f"conformill {job.pattern}: {mesh.name}",
+                     info={"pattern": job.pattern, "tool radius": job.tool_radius, "scallop": job.scallop,
+                           "passes": stats.get("passes"), "feed length mm": round(stats.get("feed_length", 0), 1)})
+        report["timings_s"]["html"] = time.perf_counter() - t
+    report["timings_s"]["total"] = time.perf_counter() - t0
+    try:
+        import psutil
+
+        report["peak_rss_mb"] = psutil.Process().memory_info().rss / 2**20
+        import resource
+
+        report["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    except Exception:  # pragma: no cover - platform without resource
+        pass
+    if args.report:
+        write_json(args.report, report)
+    if not args.quiet:
+        _summary(report, args.output)
+    return 0
+
+
+def _summary(rep: dict, out: str) -> None:
+    pr, pa, q = rep["program"], rep["paths"], rep["parameterization"]["quality"]
+    lines = [
+        f"conformill plan: {rep['mesh']['name']} ({rep['mesh']['faces']} faces), {rep['job']['pattern']}, "
+        f"ball R{rep['job']['tool_radius']:g}, scallop {rep['job']['scallop']:g}, tolerance {rep['job']['tolerance']:g}",
+        f"  parameterization  {rep['parameterization']['boundary']}, QC mean {q['qc_mean']:.3f}, flipped {q['flipped_faces']}",
+        f"  paths             {pa['planned_paths']} planned, {pa['passes']} feed pass(es), {pa['cl_points']} CL points",
+        f"  side step         flat {rep['side_step']['flat_interval_mm']:.3f} mm, realised mean "
+        f"{(rep['side_step']['realised_mm']['mean'] or 0):.3f} mm",
+        f"  program           feed {pr.get('feed_length', 0) / 1000:.2f} m, rapid {pr.get('rapid_length', 0) / 1000:.2f} m, "
+        f"{pr.get('machining_time_min', 0):.1f} min at feed",
+        f"  reachability      undercut {100 * rep['reachability']['undercut_share']:.2f}%, concave below R "
+        f"{100 * rep['reachability']['concave_below_tool_radius_share']:.2f}%",
+    ]
+    if "verify" in rep:
+        v = rep["verify"]
+        s = v.get("scallop", {})
+        lines.append(f"  verify            scallop p99.9 {s.get('p999', float('nan')):.4f} mm, max {s.get('max', float('nan')):.4f}, "
+                     f"gouge max {v.get('gouge_max', float('nan')):.4f} mm, uncut {100 * v.get('uncut_fraction', 0):.3f}%")
+    lines.append(f"  time              {rep['timings_s']['total']:.2f} s -> {out}")
+    print("\n".join(lines), file=sys.stdout)

@@ -1,1 +1,27 @@
-"""planning stage."""
+"""planning stage: side and forward steps from scallop height and chord tolerance (METHOD section 4)."""
+
+from conformill.planning.steps import (
+    check_params,
+    domain_forward_step,
+    domain_side_step,
+    forward_step,
+    polar_forward_step,
+    polar_metric,
+    polar_side_step,
+    scallop_height,
+    side_interval,
+    side_interval_paper,
+)
+
+__all__ = [
+    "check_params",
+    "side_interval",
+    "scallop_height",
+    "side_interval_paper",
+    "forward_step",
+    "domain_side_step",
+    "domain_forward_step",
+    "polar_metric",
+    "polar_side_step",
+    "polar_forward_step",
+]

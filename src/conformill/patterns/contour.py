@@ -1,0 +1,37 @@
+"""Contour-parallel rings on the circle domain (METHOD section 5).
+
+The first path is the centre point, the next radius is ``rho + min(drho)``, the last ring
+is the boundary. Consecutive rings are linked by a short radial move at ``theta = 0``
+(cut at feed, on the surface): no retract between rings.
+"""
+
+from __future__ import annotations
+
+from conformill.patterns.domains import Rings, Segment
+from conformill.patterns.pieces import Piece, domain_paths
+
+
+def plan_rings(planner, poly, delta: float, progress=None):
+    """The ring radii and curves of the contour family (also the spiral's skeleton)."""
+    fam = Rings(poly, delta)
+    return fam, planner.run(fam, 0.0, poly.R0, progress=progress)
+
+
+def plan_contour(planner, poly, delta: float, progress=None):
+    """Plan contour-parallel rings, centre outwards.
+
+    Returns
+    -------
+    domain : conformill.types.DomainPaths
+    pieces : list of Piece
+    """
+    fam, (curves, realised, predicted, shrinks) = plan_rings(planner, poly, delta, progress)
+    pieces = []
+    for i, c in enumerate(curves):
+        pieces.append(Piece("path", c, False, i))
+        if i + 1 < len(curves):
+            p0 = c.sample.uv[-1]
+            p1 = curves[i + 1].sample.uv[0]
+            link = Segment(p0, p1, delta, clip=poly.clip)
+            pieces.append(Piece("link", planner.evaluate(link, 0.0), False, i))
+    return domain_paths("contour", curves, realised, predicted, shrinks, closed=True), pieces

@@ -1,0 +1,92 @@
+"""Forward steps along a dense path (METHOD section 4, forward direction).
+
+The paper steps ``l_f = sqrt(8 e R - 4 e^2)`` along the path from the normal curvature.
+Here the steps are chosen from the dense samples of the path so that the local step
+never exceeds ``l_f`` (equidistribution of ``ds / l_f``), and then every chord is checked
+against the dense samples it skips: where one deviates by more than ``e``, the sample
+farthest from the chord is added (so the guarantee holds on the mesh, creases included,
+not only where the quadratic fit is right).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from conformill.planning.steps import forward_step
+
+
+def chord_deviation(X: np.ndarray, idx: np.ndarray):
+    """Largest distance of the skipped samples from each chord.
+
+    Parameters
+    ----------
+    X : (k, 3) float64
+        Dense polyline.
+    idx : (m,) int64
+        Increasing indices of the kept samples (first 0, last k - 1).
+
+    Returns
+    -------
+    dev : (m - 1,) float64
+        Max distance of ``X[idx[j] .. idx[j+1]]`` from the chord ``X[idx[j]] X[idx[j+1]]``.
+    arg : (m - 1,) int64
+        Index in ``X`` of the farthest sample of each chord.
+    """
+    k = len(X)
+    seg_of = np.searchsorted(idx, np.arange(k), side="right") - 1
+    seg_of = np.clip(seg_of, 0, len(idx) - 2)
+    a = X[idx[seg_of]]
+    b = X[idx[seg_of + 1]]
+    ab = b - a
+    t = np.einsum("ij,ij->i", X - a, ab) / np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-300)
+    t = np.clip(t, 0.0, 1.0)
+    d = np.linalg.norm(X - (a + t[:, None] * ab), axis=1)
+    starts = idx[:-1]
+    dev = np.maximum.reduceat(d, starts) if len(starts) else np.zeros(0)
+    # argmax per segment: sort by (segment, -d)
+    order = np.lexsort((-d, seg_of))
+    first = np.searchsorted(seg_of[order], np.arange(len(starts)))
+    arg = order[np.clip(first, 0, k - 1)]
+    return dev, arg
+
+
+def select_forward(X: np.ndarray, kappa: np.ndarray, e: float, max_step: float, max_rounds: int = 30):
+    """Indices of the dense samples kept as cutter-contact points.
+
+    Parameters
+    ----------
+    X : (k, 3) float64
+        Dense CC samples of the path (mm).
+    kappa : (k,) float64
+        Normal curvature along the path at the samples.
+    e : float
+        Chord deviation tolerance (mm).
+    max_step : float
+        Longest step allowed on flat ground (mm).
+
+    Returns
+    -------
+    idx : (m,) int64
+        Kept sample indices, increasing, including both ends.
+    """
+    k = len(X)
+    if k <= 2:
+        return np.arange(k, dtype=np.int64)
+    lf = forward_step(e, kappa, max_step)
+    seg = np.linalg.norm(np.diff(X, axis=0), axis=1)
+    lf_mid = np.minimum(lf[:-1], lf[1:])
+    N = np.concatenate([[0.0], np.cumsum(seg / lf_mid)])
+    m = max(1, int(np.ceil(N[-1] - 1e-9)))
+    targets = np.linspace(0.0, N[-1], m + 1)
+    # the last sample at or before each target keeps every step at or below l_f
+    idx = np.searchsorted(N, targets, side="right") - 1
+    idx[-1] = k - 1
+    idx = np.unique(np.clip(idx, 0, k - 1))
+    # make sure no chord skips more length than allowed where equidistribution was coarse
+    for _ in range(max_rounds):
+        dev, arg = chord_deviation(X, idx)
+        bad = dev > e
+        if not bad.any():
+            break
+        idx = np.unique(np.concatenate([idx, arg[bad]]))
+    return idx

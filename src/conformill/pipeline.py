@@ -1,0 +1,374 @@
+"""``plan(mesh, job) -> PlanResult``: the stages in order, each timed.
+
+orient -> parameterize (rectangle for zigzag, circle otherwise) -> surface frame ->
+reachability -> pattern in the domain -> forward steps and CC points -> ball-cutter CL
+(drop-cutter, gouge-safe chords) -> tool tips. Writing G-code and figures is the CLI's job.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from contextlib import contextmanager
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from conformill import __version__
+from conformill.errors import PlanningError
+from conformill.geometry.surface import DomainSurface
+from conformill.patterns.family import Planner
+from conformill.patterns.forward import select_forward
+from conformill.planning.steps import check_params, side_interval
+from conformill.types import Mesh, PathParams, PlanResult, ToolPath
+
+log = logging.getLogger(__name__)
+
+PATTERNS = ("zigzag", "contour", "spiral")
+
+
+@dataclass(frozen=True)
+class Job:
+    """What to plan. Lengths in mm, feeds in mm/min.
+
+    Attributes
+    ----------
+    pattern : {"zigzag", "contour", "spiral"}
+    tool_radius, scallop, tolerance : float
+        Ball radius r, scallop height h, chord deviation e.
+    feed, plunge_feed : float
+    safe_z : float or None
+        Clearance height of the tool tip for rapids; default: part top + ``clearance``.
+    clearance : float
+    orient : {"none", "auto"}
+        "auto" turns the part so its area-weighted mean normal is +Z.
+    weights : str
+        Parameterization weights (see :func:`conformill.param.parameterize`).
+    corners : tuple of int or None
+        Rectangle corners (zigzag), vertex ids in boundary order.
+    max_step : float
+        Longest forward step on flat ground.
+    link_max : float or None
+        Longest on-surface link between paths; longer links retract. Default
+        ``max(2 r, 4 * flat side interval)``.
+    spindle : float or None
+    """
+
+    pattern: str = "spiral"
+    tool_radius: float = 4.0
+    scallop: float = 0.1
+    tolerance: float = 0.01
+    feed: float = 1000.0
+    plunge_feed: float | None = None
+    safe_z: float | None = None
+    clearance: float = 5.0
+    orient: str = "none"
+    weights: str = "geodesic"
+    corners: tuple | None = None
+    max_step: float = 10.0
+    link_max: float | None = None
+    spindle: float | None = None
+
+
+class _Timer:
+    def __init__(self):
+        self.t = {}
+
+    @contextmanager
+    def __call__(self, name):
+        t0 = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.t[name] = self.t.get(name, 0.0) + time.perf_counter() - t0
+
+
+def check_job(job: Job) -> None:
+    """Refuse a job that cannot be met (PlanningError, exit 3)."""
+    if job.pattern not in PATTERNS:
+        raise PlanningError(f"unknown pattern {job.pattern!r}; choose one of {', '.join(PATTERNS)}")
+    check_params(job.tool_radius, job.scallop, job.tolerance)
+    for name in ("feed", "max_step", "clearance"):
+        v = getattr(job, name)
+        if not np.isfinite(v) or v <= 0:
+            raise PlanningError(f"{name.replace('_', '-')} must be a positive number, got {v}")
+    if job.plunge_feed is not None and (not np.isfinite(job.plunge_feed) or job.plunge_feed <= 0):
+        raise PlanningError(f"plunge-feed must be a positive number, got {job.plunge_feed}")
+    if job.orient not in ("none", "auto"):
+        raise PlanningError(f"orient must be 'none' or 'auto', got {job.orient!r}")
+
+
+def face_normals(V: np.ndarray, F: np.ndarray):
+    """Unit face normals and face areas."""
+    c = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+    a = np.linalg.norm(c, axis=1)
+    return c / np.maximum(a, 1e-300)[:, None], 0.5 * a
+
+
+def orient_mesh(mesh: Mesh, mode: str):
+    """Make the tool side +Z.
+
+    Faces wound so that the mean normal points down are re-wound (the tool always comes
+    from +Z on a 3-axis machine); with ``mode == "auto"`` the part is also rotated about
+    its bounding-box centre so that the area-weighted mean normal is +Z.
+
+    Returns
+    -------
+    mesh : Mesh
+    info : dict
+    """
+    V, F = mesh.V, mesh.F
+    info = {"rewound": False, "rotated_deg": 0.0}
+    n, a = face_normals(V, F)
+    m = (n * a[:, None]).sum(0)
+    if m[2] < 0:
+        F = F[:, [0, 2, 1]]
+        m = -m
+        info["rewound"] = True
+        log.warning("faces were wound with normals pointing down; re-wound so the tool side is +Z")
+    if mode == "auto":
+        z = np.array([0.0, 0.0, 1.0])
+        mu = m / np.linalg.norm(m)
+        axis = np.cross(mu, z)
+        s, c = np.linalg.norm(axis), float(mu @ z)
+        if s > 1e-12:
+            k = axis / s
+            K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+            Rm = np.eye(3) + s * K + (1 - c) * K @ K
+            ctr = 0.5 * (V.min(0) + V.max(0))
+            V = (V - ctr) @ Rm.T + ctr
+            info["rotated_deg"] = float(np.degrees(np.arctan2(s, c)))
+    return Mesh(V=V, F=F, name=mesh.name), info
+
+
+def principal_concave(sample_I: np.ndarray, sample_II: np.ndarray) -> np.ndarray:
+    """Largest principal curvature (positive = concave, towards the tool) from I and II."""
+    E, Fm, G = sample_I.T
+    L, M, N = sample_II.T
+    det = np.maximum(E * G - Fm * Fm, 1e-300)
+    H = (E * N + G * L - 2 * Fm * M) / (2 * det)
+    K = (L * N - M * M) / det
+    return H + np.sqrt(np.maximum(H * H - K, 0.0))
+
+
+def _regions(mask_f: np.ndarray, mesh: Mesh, areas: np.ndarray, top: int = 5):
+    from conformill.mesh.topology import face_components
+
+    idx = np.flatnonzero(mask_f)
+    if idx.size == 0:
+        return []
+    sub = mesh.F[idx]
+    _, lab = face_components(sub, mesh.n_vertices)
+    out = []
+    cen = mesh.V[sub].mean(axis=1)
+    for c in range(lab.max() + 1):
+        sel = lab == c
+        w = areas[idx][sel]
+        out.append({"area_mm2": float(w.sum()), "centre": (cen[sel] * w[:, None]).sum(0) / max(w.sum(), 1e-300),
+                    "faces": int(sel.sum())})
+    out.sort(key=lambda r: -r["area_mm2"])
+    return out[:top]
+
+
+def _stats(x):
+    x = np.asarray(x, dtype=np.float64)
+    x = x[np.isfinite(x)]
+    if x.size == 0:
+        return {"mean": None, "min": None, "max": None}
+    return {"mean": float(x.mean()), "min": float(x.min()), "max": float(x.max())}
+
+
+def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
+    """Plan a ball-end finishing program for ``mesh``.
+
+    Parameters
+    ----------
+    mesh : Mesh
+        A valid disk mesh in mm (see :func:`conformill.mesh.io.read_mesh`).
+    job : Job
+    progress : callable, optional
+        ``progress(stage, fraction)`` for a progress display.
+
+    Returns
+    -------
+    PlanResult
+
+    Raises
+    ------
+    PlanningError
+        Bad job values, a side step that collapses, a safe height below the part.
+    """
+    from conformill.cutter import BallCutter
+    from conformill.param import parameterize
+    from conformill.param.quality import quality
+    from conformill.patterns.contour import plan_contour
+    from conformill.patterns.domains import BoundaryPolygon
+    from conformill.patterns.spiral import plan_spiral
+    from conformill.patterns.zigzag import plan_zigzag
+
+    check_job(job)
+    timer = _Timer()
+    r, h, e = job.tool_radius, job.scallop, job.tolerance
+    params = PathParams(tool_radius=r, scallop=h, tolerance=e)
+    say = progress or (lambda stage, frac: None)
+
+    with timer("orient"):
+        mesh, orient_info = orient_mesh(mesh, job.orient)
+        fn, fa = face_normals(mesh.V, mesh.F)
+        total_area = float(fa.sum())
+        under = fn[:, 2] < 0.0
+        undercut_share = float(fa[under].sum() / total_area)
+        if undercut_share > 0:
+            log.warning("%.2f%% of the surface faces below the horizontal: not reachable in 3 axes",
+                        100 * undercut_share)
+
+    zmax = float(mesh.V[:, 2].max())
+    safe_z = zmax + job.clearance if job.safe_z is None else float(job.safe_z)
+    if safe_z < zmax + 0.5:
+        raise PlanningError(f"safe-z {safe_z:.4f} is not above the part top {zmax:.4f} by 0.5 mm")
+
+    say("parameterize", 0.0)
+    with timer("parameterize"):
+        boundary = "rectangle" if job.pattern == "zigzag" else "circle"
+        param = parameterize(mesh, boundary=boundary, weights=job.weights, corners=job.corners)
+    with timer("quality"):
+        q = quality(mesh.V, mesh.F, param.uv)
+    if q.flipped:
+        raise PlanningError(f"the parameterization has {q.flipped} flipped faces; try --weights mean_value")
+
+    with timer("frame"):
+        surface = DomainSurface(mesh.V, mesh.F, param.uv)
+
+    with timer("reachability"):
+        from conformill.geometry.differential import interpolate  # noqa: F401  (frame is per vertex)
+
+        fr = surface.frame
+        kmax_v = principal_concave(np.column_stack([fr.E, fr.F, fr.G]), np.column_stack([fr.L, fr.M, fr.N]))
+        unreach_v = kmax_v >= 1.0 / r
+        unreach_f = unreach_v[mesh.F].sum(1) >= 2
+        unreach_share = float(fa[unreach_f].sum() / total_area)
+        regions = _regions(unreach_f, mesh, fa)
+        if unreach_share > 0:
+            log.warning("%.2f%% of the surface is concave with a radius at or below the tool radius %.3g mm: "
+                        "the ball cannot follow it there (largest region near %s)", 100 * unreach_share, r,
+                        np.round(regions[0]["centre"], 2).tolist() if regions else "?")
+
+    # dense sampling: about half a mesh edge, never coarser than a third of the flat side step
+    E_ = np.linalg.norm(mesh.V[mesh.F[:, 1]] - mesh.V[mesh.F[:, 0]], axis=1)
+    flat_ls = float(side_interval(h, r, np.zeros(1))[0][0])
+    seg_len = min(0.5 * float(np.median(E_)), flat_ls / 3.0)
+    sigma = np.median(q.sigma[np.isfinite(q.sigma) & (q.sigma > 0)])
+    delta = seg_len / sigma
+    planner = Planner(surface, params, seg_len)
+
+    with timer("pattern"):
+        prog = (lambda f: say("pattern", f))
+        if job.pattern == "zigzag":
+            X, Y = param.domain
+            domain, pieces = plan_zigzag(planner, X, Y, delta, progress=prog)
+        else:
+            uvb = param.uv[param.boundary]
+            poly = BoundaryPolygon(uvb)
+            fn_ = plan_contour if job.pattern == "contour" else plan_spiral
+            domain, pieces = fn_(planner, poly, delta, progress=prog)
+
+    link_max = job.link_max if job.link_max is not None else max(2.0 * r, 4.0 * flat_ls)
+    with timer("forward"):
+        cc_paths, fwd_steps = [], []
+        groups = [[]]  # passes of (cc, n) chunks
+        group_paths = [[]]
+        n_retracts_link = 0
+        for pc in pieces:
+            c = pc.curve
+            S = c.sample
+            order = slice(None, None, -1) if pc.reverse else slice(None)
+            X3 = S.xyz[order]
+            kap = S.curvature(c.t)[order]
+            idx = select_forward(X3, kap, e, job.max_step)
+            cc, nn = X3[idx], S.n[order][idx]
+            if pc.kind == "path":
+                cc_paths.append(cc)
+                if len(cc) > 1:
+                    fwd_steps.append(np.linalg.norm(np.diff(cc, axis=0), axis=1))
+                groups[-1].append((cc, nn))
+                group_paths[-1].append(pc.index)
+            else:
+                L = float(np.linalg.norm(np.diff(X3, axis=0), axis=1).sum())
+                if L <= link_max:
+                    groups[-1].append((cc[1:-1], nn[1:-1]))
+                else:
+                    n_retracts_link += 1
+                    groups.append([])
+                    group_paths.append([])
+    say("cutter", 0.0)
+    with timer("cutter"):
+        cutter = BallCutter(mesh.V, mesh.F, r)
+        passes, lifts, pass_ids = [], [], []
+        for chunks, ids in zip(groups, group_paths):
+            if not chunks:
+                continue
+            cc = np.concatenate([c for c, _ in chunks])
+            nn = np.concatenate([n for _, n in chunks])
+            centres, lift = cutter.cl_from_cc(cc, nn)
+            ok = np.isfinite(centres[:, 2])
+            centres = centres[ok]
+            lifts.append(lift[ok])
+            centres = cutter.refine(centres, 0.5 * e)
+            # drop consecutive duplicates (a centre point path, link ends)
+            keep = np.ones(len(centres), dtype=bool)
+            keep[1:] = np.any(np.abs(np.diff(centres, axis=0)) > 1e-9, axis=1)
+            passes.append(cutter.tip(centres[keep]))
+            pass_ids.append(ids[0] if ids else -1)
+    toolpath = ToolPath(passes=passes, safe_z=safe_z, pass_ids=pass_ids)
+
+    # -- figures -----------------------------------------------------------------
+    lift_all = np.concatenate(lifts) if lifts else np.zeros(0)
+    fwd_all = np.concatenate(fwd_steps) if fwd_steps else np.zeros(0)
+    allowed = np.concatenate([p.side_allowed for p in domain.paths[:-1]]) if len(domain.paths) > 1 else np.zeros(0)
+    realised = np.concatenate([p.side_realised for p in domain.paths[:-1]]) if len(domain.paths) > 1 else np.zeros(0)
+    predicted = np.concatenate([p.side_predicted for p in domain.paths[:-1]]) if len(domain.paths) > 1 else np.zeros(0)
+    ok = np.isfinite(realised) & np.isfinite(predicted) & (predicted > 0)
+    lin_err = 100 * np.abs(predicted[ok] - realised[ok]) / predicted[ok]
+    util = 100 * realised[np.isfinite(realised)] / allowed[np.isfinite(realised)]
+    report = {
+        "conformill_version": __version__,
+        "mesh": {"name": mesh.name, "vertices": mesh.n_vertices, "faces": mesh.n_faces,
+                 "bbox_min": mesh.V.min(0), "bbox_max": mesh.V.max(0), "area_mm2": total_area},
+        "job": {"pattern": job.pattern, "tool_radius": r, "scallop": h, "tolerance": e, "feed": job.feed,
+                "plunge_feed": job.plunge_feed or job.feed / 3, "safe_z": safe_z, "orient": job.orient,
+                "weights": job.weights, "max_step": job.max_step, "link_max": link_max},
+        "orientation": orient_info,
+        "parameterization": {"boundary": param.kind, "domain": param.domain, "corners": param.corners,
+                             "solver": param.solver, "residual": param.residual, "fallbacks": param.fallbacks,
+                             "quality": q.as_dict()},
+        "paths": {"planned_paths": len(domain.paths), "passes": len(passes),
+                  "retracts_for_long_links": n_retracts_link,
+                  "cc_points": int(sum(len(c) for c in cc_paths)),
+                  "cl_points": int(sum(len(p) for p in passes)),
+                  "step_shrinks_3d_check": domain.shrink_iterations,
+                  "dense_sample_spacing_mm": seg_len},
+        "side_step": {"flat_interval_mm": flat_ls, "allowed_mm": _stats(allowed), "realised_mm": _stats(realised),
+                      "utilisation_pct": _stats(util)},
+        "forward_step": {"mm": _stats(fwd_all)},
+        "error_analysis": {
+            "linearisation_pct": _stats(lin_err),
+            "note": "METHOD section 6: |l_s' - d| / l_s' with l_s' = sqrt(EG-F^2)/|r_t| * step, the side interval "
+                    "the metric predicts for the domain step taken, and d the true 3D distance to the next path; "
+                    "utilisation = d / allowed l_s (the paper's min rule leaves it below 100% away from the "
+                    "point that sets the step)",
+        },
+        "cutter": {"lift_mm": _stats(lift_all),
+                   "lift_over_tolerance_share": float(np.mean(lift_all > e)) if lift_all.size else 0.0},
+        "reachability": {"undercut_share": undercut_share,
+                         "concave_below_tool_radius_share": unreach_share, "concave_regions": regions},
+        "timings_s": timer.t,
+    }
+    say("done", 1.0)
+    result = PlanResult(toolpath=toolpath, param=param, domain_paths=domain, cc_paths=cc_paths,
+                        mesh=mesh, report=report)
+    return result
+
+
+def with_overrides(job: Job, **kw) -> Job:
+    """A copy of ``job`` with fields replaced (None values ignored)."""
+    return replace(job, **{k: v for k, v in kw.items() if v is not None})

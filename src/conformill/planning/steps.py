@@ -1,0 +1,381 @@
+"""Step lengths between and along tool paths for a ball-end cutter (METHOD sections 2 and 4).
+
+Exact circle geometry in the plane normal to the path (side step) or in the osculating
+plane of the path (forward step), not the small-step limits of the paper.
+
+Curvature sign (as in :mod:`conformill.geometry.differential`): ``kappa > 0`` means the
+surface curves towards the tool (concave, a bowl or trough), ``kappa < 0`` away from it
+(convex, a dome), ``R = 1/|kappa|``.
+
+Side interval: derivation
+-------------------------
+Cut the surface by the plane across the paths; there it is a circle of radius ``R``
+centred at ``O``. Two adjacent CC points ``P1, P2`` on it, chord ``w = |P1 P2|``, subtend
+``2 alpha`` at ``O`` with ``w = 2 R sin(alpha)``. The ball centres lie on the surface
+normals at distance ``r`` from the CC points, i.e. on the circle of radius
+``D = R + r`` (convex: tool outside the circle) or ``D = R - r`` (concave: tool inside,
+needs ``R > r``), at the same angles ``+-alpha``. By symmetry the cusp ``X`` of material
+left between the two balls lies on the bisector, at distance ``d`` from ``O`` with
+``|X - C1| = r``, law of cosines::
+
+    d^2 + D^2 - 2 d D cos(alpha) = r^2.
+
+Convex: the cusp is the lower root and ``d = R + h``; concave: it is the upper root and
+``d = R - h``. In both cases ``D - d = +-(r - h)``, so
+``1 - cos(alpha) = (r^2 - (D - d)^2) / (2 d D) = h (2r - h) / (2 d D)``. With the signed
+curvature ``kappa`` (``d D = R^2 (1 - h kappa)(1 - r kappa)`` in both cases)::
+
+    Q = h (2r - h) / (2 (1 - h kappa)(1 - r kappa)),   1 - cos(alpha) = Q kappa^2,
+    w = 2 R sin(alpha) = 2 sqrt(Q (2 - Q kappa^2)),
+
+which is continuous through ``kappa = 0``, where it is the flat interval
+``2 sqrt(h (2r - h))`` (two circles of radius ``r`` whose centres are ``w`` apart meet at
+height ``r - sqrt(r^2 - w^2/4) = h``). The paper's forms ``sqrt(8 h r R / (R +- r))`` are
+the limit ``h << r`` of this.
+
+Validity: convex, the lower root is the cusp only while ``d^2 <= D^2 - r^2``, i.e.
+``R >= h^2 / (2 (r - h))``; on sharper convex curvature even the widest chord at which the
+two balls still meet on the bisector (``sin(alpha) = r / (R + r)``, chord
+``2 r / (1 + r |kappa|)``) leaves less than ``h``, so that chord is returned. Concave,
+``alpha`` is capped at 90 degrees (the chord at most the diameter) and ``R <= r`` means the
+ball cannot follow the surface: ``reachable`` is False and the flat interval is returned
+as a conservative step.
+
+Inverse (cusp height of chord ``w``, ``s = w / 2``, ``sin(alpha) = s |kappa|``,
+``a = |D| sin(alpha) = (1 - r kappa) s``)::
+
+    h = s^2 (1 - 2 r kappa) / (r cos(alpha) + sqrt(r^2 - a^2)) + s^2 kappa / (1 + cos(alpha)),
+
+from ``h = +-(d - R)``, ``d = D cos(alpha) -+ sqrt(r^2 - a^2)``, written without
+cancellation (``R (1 - cos alpha) = s^2 |kappa| / (1 + cos alpha)`` and
+``r cos(alpha) - sqrt(r^2 - a^2) = (a^2 - r^2 sin^2 alpha) / (r cos(alpha) + sqrt(r^2 - a^2))``).
+
+Forward step: the longest chord of a circle of radius ``R`` whose sagitta is ``e`` is
+``2 sqrt(e (2R - e))`` (METHOD: ``sqrt(8 e R cos(theta) - 4 e^2)`` with ``cos(theta) = 1``).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from conformill.errors import PlanningError
+from conformill.types import PathParams
+
+
+def _positive(name: str, value) -> float:
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        raise PlanningError(f"{name} must be a number, got {value!r}") from None
+    if not math.isfinite(x) or x <= 0.0:
+        raise PlanningError(f"{name} must be finite and > 0 mm, got {value!r}")
+    return x
+
+
+def check_params(tool_radius, scallop, tolerance) -> PathParams:
+    """Validate cutting parameters (ball radius ``r``, scallop ``h``, chord tolerance ``e``).
+
+    Parameters
+    ----------
+    tool_radius, scallop, tolerance : float
+        Millimetres.
+
+    Returns
+    -------
+    PathParams
+        The values as floats.
+
+    Raises
+    ------
+    PlanningError
+        A value is not a finite positive number, or ``scallop >= tool_radius`` (a ball of
+        radius ``r`` cannot leave a cusp of ``r`` or more between touching passes).
+    """
+    r = _positive("tool radius", tool_radius)
+    h = _positive("scallop height", scallop)
+    e = _positive("chord tolerance", tolerance)
+    if h >= r:
+        raise PlanningError(f"scallop height {h:g} mm must be smaller than the tool radius {r:g} mm")
+    return PathParams(tool_radius=r, scallop=h, tolerance=e)
+
+
+def side_interval(h, r, kappa):
+    """Exact chord between adjacent CC points leaving a cusp of height ``h``.
+
+    See the module notes for the derivation:
+    ``Q = h (2r - h) / (2 (1 - h kappa)(1 - r kappa))``, ``l_s = 2 sqrt(Q (2 - Q kappa^2))``.
+
+    Parameters
+    ----------
+    h : float or ndarray
+        Scallop height (mm), ``0 < h < r``.
+    r : float
+        Ball radius (mm).
+    kappa : float or ndarray
+        Signed normal curvature across the paths (1/mm), > 0 concave.
+
+    Returns
+    -------
+    l_s : ndarray of float64
+        Chord between the CC points of adjacent paths (mm).
+    reachable : ndarray of bool
+        False where the surface is concave with ``R <= r`` (the ball cannot follow; ``l_s``
+        is then the flat interval ``2 sqrt(h (2r - h))``) or ``kappa`` is not finite
+        (same fallback).
+    """
+    h = np.asarray(h, dtype=np.float64)
+    k = np.asarray(kappa, dtype=np.float64)
+    r = float(r)
+    h, k = np.broadcast_arrays(h, k)
+    flat = 2.0 * np.sqrt(h * (2.0 * r - h))
+    reachable = np.isfinite(k) & (r * k < 1.0)
+    ks = np.where(reachable, k, 0.0)
+    ak = np.abs(ks)
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        Q = h * (2.0 * r - h) / (2.0 * (1.0 - h * ks) * (1.0 - r * ks))
+        q = np.minimum(Q * ks * ks, 1.0)  # 1 - cos(alpha), alpha <= 90 degrees
+        w = np.where(q >= 1.0, 2.0 / np.where(ak > 0, ak, 1.0), 2.0 * np.sqrt(Q * (2.0 - q)))
+        # sharp convex: even the widest chord at which the balls still meet leaves < h
+        sharp = (ks < 0) & (ak * h * h > 2.0 * (r - h))
+        w = np.where(sharp, 2.0 * r / (1.0 + r * ak), w)
+    w = np.where(reachable, w, flat)
+    return w, reachable
+
+
+def scallop_height(w, r, kappa):
+    """Cusp height left between two passes whose CC points are a chord ``w`` apart.
+
+    Inverse of :func:`side_interval` (module notes):
+    ``h = s^2 (1 - 2 r kappa) / (r cos(alpha) + sqrt(r^2 - a^2)) + s^2 kappa / (1 + cos(alpha))``
+    with ``s = w/2``, ``sin(alpha) = s |kappa|``, ``a = (1 - r kappa) s``.
+
+    Parameters
+    ----------
+    w : float or ndarray
+        Chord between adjacent CC points (mm), >= 0.
+    r : float
+        Ball radius (mm).
+    kappa : float or ndarray
+        Signed normal curvature across the paths (1/mm).
+
+    Returns
+    -------
+    ndarray of float64
+        ``inf`` where the two balls do not meet on the bisector (nothing cuts the middle)
+        or the chord exceeds the diameter ``2R``; NaN where concave with ``R <= r``.
+    """
+    w = np.asarray(w, dtype=np.float64)
+    k = np.asarray(kappa, dtype=np.float64)
+    r = float(r)
+    w, k = np.broadcast_arrays(w, k)
+    s = 0.5 * w
+    sa = s * np.abs(k)
+    a = (1.0 - r * k) * s
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ca = np.sqrt(np.maximum(1.0 - sa * sa, 0.0))
+        root = np.sqrt(np.maximum(r * r - a * a, 0.0))
+        h = s * s * (1.0 - 2.0 * r * k) / (r * ca + root) + s * s * k / (1.0 + ca)
+    # (relative slack 1e-12 so that side_interval's widest chord maps back to a finite h)
+    h = np.where((sa > 1.0 + 1e-12) | (np.abs(a) > r * (1.0 + 1e-12)), np.inf, h)
+    h = np.where(r * k >= 1.0, np.nan, h)
+    return h
+
+
+def side_interval_paper(h, r, kappa):
+    """The paper's small-``h`` side interval (METHOD section 4), for comparison only.
+
+    ``sqrt(8 h r R / (R + r))`` convex, ``sqrt(8 h r R / (R - r))`` concave (NaN where
+    ``R <= r``), ``sqrt(8 h r)`` flat; in curvature form ``sqrt(8 h r / (1 - r kappa))``.
+    """
+    h = np.asarray(h, dtype=np.float64)
+    k = np.asarray(kappa, dtype=np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        den = 1.0 - float(r) * k
+        return np.where(den > 0, np.sqrt(8.0 * h * float(r) / np.where(den > 0, den, 1.0)), np.nan)
+
+
+def forward_step(e, kappa, max_step):
+    """Longest chord along the path whose deviation from the surface stays below ``e``.
+
+    ``l_f = 2 sqrt(e (2R - e))``, ``R = 1/|kappa|`` (METHOD section 4 with
+    ``cos(theta) = 1``), computed as ``2 sqrt(e (2 - e |kappa|) / |kappa|)``.
+
+    Parameters
+    ----------
+    e : float or ndarray
+        Chord tolerance (mm), > 0.
+    kappa : float or ndarray
+        Normal curvature along the path (1/mm); only ``|kappa|`` matters.
+    max_step : float or ndarray
+        Upper bound (mm), returned where ``kappa`` is 0 (or not finite) or ``2R <= e``
+        (every chord of the circle is within tolerance).
+
+    Returns
+    -------
+    ndarray of float64
+    """
+    e = np.asarray(e, dtype=np.float64)
+    ak = np.abs(np.asarray(kappa, dtype=np.float64))
+    cap = np.asarray(max_step, dtype=np.float64)
+    ok = np.isfinite(ak) & (ak > 0) & (e * ak < 2.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        w = 2.0 * np.sqrt(e * (2.0 - e * ak) / np.where(ok, ak, 1.0))
+    return np.where(ok, np.minimum(w, cap), cap * np.ones_like(w))
+
+
+def _det(E, F, G):
+    E, F, G = (np.asarray(a, dtype=np.float64) for a in (E, F, G))
+    det = E * G - F * F
+    return E, F, G, np.where(det > 0, det, np.nan)
+
+
+def domain_side_step(l_s, E, F, G, across: str = "u"):
+    """Domain step between iso-parameter paths that are ``l_s`` apart on the surface.
+
+    Paths ``u = const`` (``across="u"``): the surface distance between the lines ``u`` and
+    ``u + du`` is ``du sqrt(E) sin(phi)`` with ``sin(phi) = sqrt(EG - F^2) / sqrt(EG)``
+    (METHOD section 2), so ``du = l_s sqrt(G) / sqrt(EG - F^2)``; ``across="v"``:
+    ``dv = l_s sqrt(E) / sqrt(EG - F^2)``. Conformal maps give ``l_s / sigma``.
+
+    Parameters
+    ----------
+    l_s : float or ndarray
+        Surface interval (mm).
+    E, F, G : float or ndarray
+        First fundamental form at the points (``F = r_u . r_v``).
+    across : {"u", "v"}
+
+    Returns
+    -------
+    ndarray of float64
+        NaN where the metric is degenerate (``EG - F^2 <= 0``).
+
+    Raises
+    ------
+    PlanningError
+        ``across`` is not "u" or "v".
+    """
+    E, F, G, det = _det(E, F, G)
+    if across == "u":
+        num = G
+    elif across == "v":
+        num = E
+    else:
+        raise PlanningError(f"domain_side_step: across must be 'u' or 'v', got {across!r}")
+    return np.asarray(l_s, dtype=np.float64) * np.sqrt(num / det)
+
+
+def domain_forward_step(l_f, E, F, G, along: str = "v"):
+    """Domain step along an iso-parameter path: ``dv = l_f / sqrt(G)`` or ``du = l_f / sqrt(E)``.
+
+    Parameters
+    ----------
+    l_f : float or ndarray
+        Surface chord (mm).
+    E, F, G : float or ndarray
+    along : {"v", "u"}
+
+    Returns
+    -------
+    ndarray of float64
+        NaN where the metric is degenerate.
+
+    Raises
+    ------
+    PlanningError
+        ``along`` is not "u" or "v".
+    """
+    E, F, G, det = _det(E, F, G)
+    if along == "v":
+        g = G
+    elif along == "u":
+        g = E
+    else:
+        raise PlanningError(f"domain_forward_step: along must be 'u' or 'v', got {along!r}")
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(np.isfinite(det), np.asarray(l_f, dtype=np.float64) / np.sqrt(g), np.nan)
+
+
+def polar_metric(E, F, G, theta, rho):
+    """First fundamental form in polar domain coordinates ``u = rho cos(theta), v = rho sin(theta)``.
+
+    ``r_rho = c r_u + s r_v``, ``r_theta = rho (-s r_u + c r_v)`` give
+    ``E_rho = E c^2 + 2 F c s + G s^2``,
+    ``F_rt = rho ((G - E) c s + F (c^2 - s^2))``,
+    ``G_theta = rho^2 (E s^2 - 2 F c s + G c^2)``, and ``E_rho G_theta - F_rt^2 = rho^2 (EG - F^2)``.
+
+    Returns
+    -------
+    E_rho, F_rt, G_theta : ndarray of float64
+    """
+    E, F, G = (np.asarray(a, dtype=np.float64) for a in (E, F, G))
+    c, s = np.cos(theta), np.sin(theta)
+    rho = np.asarray(rho, dtype=np.float64)
+    Er = E * c * c + 2 * F * c * s + G * s * s
+    Frt = rho * ((G - E) * c * s + F * (c * c - s * s))
+    Gt = rho * rho * (E * s * s - 2 * F * c * s + G * c * c)
+    return Er, Frt, Gt
+
+
+def polar_side_step(l_s, E, F, G, theta):
+    """Radial domain step between rings ``rho = const`` that are ``l_s`` apart on the surface.
+
+    The distance between the iso-``rho`` lines is ``drho sqrt(E_rho G_theta - F_rt^2) /
+    sqrt(G_theta)`` (:func:`polar_metric`), hence
+    ``drho = l_s sqrt(E s^2 - 2 F c s + G c^2) / sqrt(EG - F^2)``, independent of ``rho``
+    (well defined at the centre). Conformal: ``l_s / sigma``.
+
+    Parameters
+    ----------
+    l_s : float or ndarray
+    E, F, G : float or ndarray
+        First fundamental form in ``(u, v)`` at the points.
+    theta : float or ndarray
+        Polar angle of the points in the domain.
+
+    Returns
+    -------
+    ndarray of float64
+        NaN where the metric is degenerate.
+    """
+    E, F, G, det = _det(E, F, G)
+    c, s = np.cos(theta), np.sin(theta)
+    gt = E * s * s - 2 * F * c * s + G * c * c
+    return np.asarray(l_s, dtype=np.float64) * np.sqrt(gt / det)
+
+
+def polar_forward_step(l_f, E, F, G, theta, rho):
+    """Angular domain step along a ring ``rho = const``: ``dtheta = l_f / sqrt(G_theta)``.
+
+    ``sqrt(G_theta) = rho sqrt(E s^2 - 2 F c s + G c^2)`` (:func:`polar_metric`); METHOD
+    section 5 writes ``l_f / (rho sigma)`` for a conformal map. Capped at ``2 pi`` (one
+    turn; at ``rho = 0`` the ring is a point).
+
+    Returns
+    -------
+    ndarray of float64
+        NaN where the metric is degenerate.
+    """
+    E, F, G, det = _det(E, F, G)
+    c, s = np.cos(theta), np.sin(theta)
+    speed = np.asarray(rho, dtype=np.float64) * np.sqrt(E * s * s - 2 * F * c * s + G * c * c)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        d = np.where(speed > 0, np.asarray(l_f, dtype=np.float64) / np.where(speed > 0, speed, 1.0), 2 * np.pi)
+    d = np.minimum(d, 2 * np.pi)
+    return np.where(np.isfinite(det), d, np.nan)
+
+
+__all__ = [
+    "check_params",
+    "side_interval",
+    "scallop_height",
+    "side_interval_paper",
+    "forward_step",
+    "domain_side_step",
+    "domain_forward_step",
+    "polar_metric",
+    "polar_side_step",
+    "polar_forward_step",
+]

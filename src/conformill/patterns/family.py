@@ -161,10 +161,10 @@ class Planner:
                 d_fwd = point_polyline_distance(cur.sample.xyz, nxt.sample.xyz, family.closed)
                 d_bwd = point_polyline_distance(nxt.sample.xyz, cur.sample.xyz, family.closed)
                 ratio = max(np.max(d_fwd / cur.ls), np.max(d_bwd / nxt.ls))
-                if ratio <= 1.0:
+                if ratio <= 1.0 + 1e-9:
                     break
                 shrinks += 1
-                step = (s_next - cur.s) * min(0.995 / ratio, 0.9)
+                step = (s_next - cur.s) * min(0.995 / ratio, 0.999)
             else:
                 log.warning("3D spacing check did not converge at offset %.6g (ratio %.3f)", cur.s, ratio)
             realised.append(d_fwd)

@@ -45,7 +45,7 @@ def plan_spiral(planner, poly, delta: float, progress=None, max_rounds: int = 4)
             step = np.interp(a.tau, [0.0, 1.0], [radii[min(k + 1, len(radii) - 1)] - radii[k],
                                                   radii[min(k + 2, len(radii) - 1)] - radii[min(k + 1, len(radii) - 1)]])
             predicted.append(a.sample.area_factor() / a.sample.length(a.t) * step)
-            if max(np.max(d_fwd / a.ls), np.max(d_bwd / b.ls)) > 1.0:
+            if max(np.max(d_fwd / a.ls), np.max(d_bwd / b.ls)) > 1.0 + 1e-9:
                 bad.update({k, k + 1})
         if not bad:
             break

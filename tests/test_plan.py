@@ -1,0 +1,95 @@
+"""End-to-end planning on analytic parts: spacing, CC on the mesh, cutter offset, errors."""
+
+import numpy as np
+import pytest
+
+from conformill.errors import PlanningError
+from conformill.mesh import synthetic
+from conformill.pipeline import Job, plan
+
+R_TOOL, H = 4.0, 0.1
+FLAT = 2 * np.sqrt(H * (2 * R_TOOL - H))
+
+
+@pytest.fixture(scope="module")
+def square():
+    return synthetic.plane(size=40.0, spacing=2.0, jitter=0.25, seed=3)
+
+
+@pytest.fixture(scope="module")
+def zigzag_square(square):
+    return plan(square, Job(pattern="zigzag", tool_radius=R_TOOL, scallop=H, tolerance=0.01))
+
+
+def test_zigzag_on_plane_spaces_paths_at_exact_flat_interval(zigzag_square):
+    dom = zigzag_square.domain_paths
+    d = [np.median(p.side_realised) for p in dom.paths[:-2]]
+    # the rectangle map of a square plane is a similarity: every step is the flat interval
+    np.testing.assert_allclose(d, FLAT, rtol=1e-6)
+    last = dom.paths[-2].side_realised
+    assert np.all(last <= FLAT * (1 + 1e-9))
+    assert len(zigzag_square.toolpath.passes) == 1  # rows linked on the surface
+
+
+def test_plane_tool_tip_sits_on_plane(zigzag_square):
+    tips = np.concatenate(zigzag_square.toolpath.passes)
+    np.testing.assert_allclose(tips[:, 2], 0.0, atol=1e-9)
+
+
+def test_cc_points_lie_on_mesh_and_ball_centre_is_r_along_normal():
+    dome = synthetic.sphere_cap(R=50.0, radius_xy=25.0, spacing=1.5, jitter=0.2)
+    res = plan(dome, Job(pattern="contour", tool_radius=R_TOOL, scallop=0.2, tolerance=0.01))
+    cc = np.concatenate(res.cc_paths)
+    # on the faceted sphere: vertices are on it, a face lies inside by at most
+    # R - sqrt(R^2 - rho^2), rho the largest circumradius
+    V, F = dome.V, dome.F
+    a, b, c = (np.linalg.norm(V[F[:, i]] - V[F[:, j]], axis=1) for i, j in ((1, 2), (2, 0), (0, 1)))
+    area = 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
+    rho = (a * b * c / (4 * area)).max()
+    sag = 50.0 - np.sqrt(50.0**2 - rho**2)
+    rr = np.linalg.norm(cc, axis=1)
+    assert np.all(rr <= 50.0 + 1e-9) and np.all(rr >= 50.0 - sag - 1e-9)
+    # ball centre = CC + r n: on the offset sphere of radius R + r, up to faceting
+    tips = np.concatenate(res.toolpath.passes)
+    centres = tips + [0, 0, R_TOOL]
+    d = np.linalg.norm(centres, axis=1)
+    assert np.all(d <= 54.0 + 1e-6) and np.all(d >= 54.0 - sag - 1e-6)
+
+
+def test_spiral_is_one_pass_and_contour_has_no_retracts():
+    part = synthetic.freeform_patch(spacing=2.5)
+    sp = plan(part, Job(pattern="spiral", tool_radius=R_TOOL, scallop=0.5, tolerance=0.02))
+    assert len(sp.toolpath.passes) == 1
+    co = plan(part, Job(pattern="contour", tool_radius=R_TOOL, scallop=0.5, tolerance=0.02))
+    assert len(co.toolpath.passes) <= 1 + co.report["paths"]["retracts_for_long_links"]
+
+
+def test_adjacent_paths_never_farther_than_allowed():
+    part = synthetic.freeform_patch(spacing=2.5)
+    for pattern in ("zigzag", "contour"):
+        res = plan(part, Job(pattern=pattern, tool_radius=R_TOOL, scallop=0.3, tolerance=0.02))
+        for p in res.domain_paths.paths[:-1]:
+            assert np.all(p.side_realised <= p.side_allowed * (1 + 1e-9))
+
+
+@pytest.mark.parametrize(
+    "kw, word",
+    [
+        (dict(scallop=4.0), "scallop"),
+        (dict(scallop=-0.1), "scallop"),
+        (dict(tolerance=0.0), "tolerance"),
+        (dict(tool_radius=float("nan")), "radius"),
+        (dict(pattern="raster"), "pattern"),
+        (dict(feed=0.0), "feed"),
+    ],
+)
+def test_bad_job_values_are_refused(kw, word):
+    part = synthetic.plane(size=10, spacing=2)
+    with pytest.raises(PlanningError, match=word):
+        plan(part, Job(**{**dict(tool_radius=R_TOOL, scallop=H), **kw}))
+
+
+def test_safe_z_below_part_is_refused():
+    part = synthetic.sphere_cap(R=30, radius_xy=10, spacing=2)
+    with pytest.raises(PlanningError, match="safe-z"):
+        plan(part, Job(tool_radius=2, scallop=0.1, safe_z=0.0))

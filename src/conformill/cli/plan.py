@@ -47,7 +47,7 @@ def _corners(text):
 def run(args) -> int:
     from conformill.cli.progress import StageProgress
     from conformill.mesh.io import read_mesh
-    from conformill.output.atomic import check_writable
+    from conformill.output.atomic import all_or_nothing, check_writable
     from conformill.output.gcode import write_gcode
     from conformill.output.report import write_json
     from conformill.pipeline import Job, plan
@@ -83,48 +83,53 @@ def run(args) -> int:
         "scale": args.scale, "orient": job.orient, "weights": job.weights,
         "programmed point": "tool tip", "units": "mm",
     }
-    t = time.perf_counter()
-    stats = write_gcode(args.output, result.toolpath, feed=job.feed, plunge_feed=job.plunge_feed,
-                        spindle=job.spindle, header=header)
-    report["timings_s"]["gcode"] = time.perf_counter() - t
-    report["program"] = stats
-    if args.plot:
-        from conformill.output.plot_plan import plot_plan
-
+    with all_or_nothing(args.output, args.report, args.plot, args.html):
         t = time.perf_counter()
-        plot_plan(args.plot, result)
-        report["timings_s"]["plot"] = time.perf_counter() - t
-    if args.verify:
-        from conformill.cli.verify import verify_program
+        stats = write_gcode(args.output, result.toolpath, feed=job.feed, plunge_feed=job.plunge_feed or job.feed / 3,
+                            spindle=job.spindle, header=header)
+        report["timings_s"]["gcode"] = time.perf_counter() - t
+        report["program"] = stats
+        if args.plot:
+            from conformill.output.plot_plan import plot_plan
 
-        t = time.perf_counter()
-        report["verify"] = verify_program(result.mesh, args.output, job.tool_radius, scallop=job.scallop,
-                                          gouge=job.tolerance, quiet=args.quiet)
-        report["timings_s"]["verify"] = time.perf_counter() - t
-    if args.html:
-        from conformill.output.viewer import write_viewer
+            t = time.perf_counter()
+            plot_plan(args.plot, result)
+            report["timings_s"]["plot"] = time.perf_counter() - t
+        if args.verify:
+            from conformill.cli.verify import verify_program
 
-        t = time.perf_counter()
-        write_viewer(args.html, result.mesh.V, result.mesh.F, result.toolpath.passes,
-                     title=f"conformill {job.pattern}: {mesh.name}",
-                     info={"pattern": job.pattern, "tool radius": job.tool_radius, "scallop": job.scallop,
-                           "passes": stats.get("passes"), "feed length mm": round(stats.get("feed_length", 0), 1)})
-        report["timings_s"]["html"] = time.perf_counter() - t
-    report["timings_s"]["total"] = time.perf_counter() - t0
-    try:
-        import psutil
+            t = time.perf_counter()
+            report["verify"] = verify_program(result.mesh, args.output, job.tool_radius, scallop=job.scallop,
+                                              gouge=job.tolerance, quiet=args.quiet)
+            report["timings_s"]["verify"] = time.perf_counter() - t
+        if args.html:
+            from conformill.output.viewer import write_viewer
 
-        report["peak_rss_mb"] = psutil.Process().memory_info().rss / 2**20
-        import resource
-
-        report["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    except Exception:  # pragma: no cover - platform without resource
-        pass
-    if args.report:
-        write_json(args.report, report)
+            t = time.perf_counter()
+            write_viewer(args.html, result.mesh.V, result.mesh.F, result.toolpath.passes,
+                         title=f"conformill {job.pattern}: {mesh.name}",
+                         info={"pattern": job.pattern, "tool radius": job.tool_radius, "scallop": job.scallop,
+                               "passes": stats["passes"], "feed length mm": round(stats["feed_length_mm"], 1)})
+            report["timings_s"]["html"] = time.perf_counter() - t
+        report["timings_s"]["total"] = time.perf_counter() - t0
+        report["peak_rss_mb"] = peak_rss_mb()
+        if args.report:
+            write_json(args.report, report)
     if not args.quiet:
         _summary(report, args.output)
     return 0
+
+
+def peak_rss_mb() -> float:
+    """Peak resident memory of this process so far (MB)."""
+    try:
+        import resource
+
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    except ImportError:  # pragma: no cover - Windows
+        import psutil
+
+        return psutil.Process().memory_info().peak_wset / 2**20
 
 
 def _summary(rep: dict, out: str) -> None:
@@ -136,8 +141,8 @@ def _summary(rep: dict, out: str) -> None:
         f"  paths             {pa['planned_paths']} planned, {pa['passes']} feed pass(es), {pa['cl_points']} CL points",
         f"  side step         flat {rep['side_step']['flat_interval_mm']:.3f} mm, realised mean "
         f"{(rep['side_step']['realised_mm']['mean'] or 0):.3f} mm",
-        f"  program           feed {pr.get('feed_length', 0) / 1000:.2f} m, rapid {pr.get('rapid_length', 0) / 1000:.2f} m, "
-        f"{pr.get('machining_time_min', 0):.1f} min at feed",
+        f"  program           feed {pr['feed_length_mm'] / 1000:.2f} m, rapid {pr['rapid_length_mm'] / 1000:.2f} m, "
+        f"{pr['machining_time_min']:.1f} min at feed, {pr['n_lines']} lines",
         f"  reachability      undercut {100 * rep['reachability']['undercut_share']:.2f}%, concave below R "
         f"{100 * rep['reachability']['concave_below_tool_radius_share']:.2f}%",
     ]

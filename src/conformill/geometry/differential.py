@@ -252,7 +252,10 @@ def _fit_kring(which, depth, ptr, nb, V, uv, coef, rc, rcond_min, quadratic):
                         continue
                     if cnt == cap:
                         nbuf = np.empty(2 * cap, dtype=np.int64)
-                        nbuf[:cap] = buf
+                        # element copy: a slice assignment trips numba's parallel
+                        # array analysis (it assumes the two sizes equal)
+                        for z in range(cap):
+                            nbuf[z] = buf[z]
                         buf = nbuf
                         cap *= 2
                     buf[cnt] = x

@@ -71,3 +71,30 @@ def check_writable(*paths) -> None:
         folder = Path(p).parent if str(Path(p).parent) else Path(".")
         if not folder.is_dir():
             raise OutputError(f"cannot write {p}: folder {folder} does not exist")
+
+
+@contextlib.contextmanager
+def all_or_nothing(*paths):
+    """Remove every file in ``paths`` written inside the block if the block fails.
+
+    A command that writes several outputs (program, report, plot, viewer) leaves none of
+    them behind when a later one cannot be made. Files that existed before are left alone
+    only if they were not replaced inside the block.
+    """
+    before = {str(p): _stamp(p) for p in paths if p is not None}
+    try:
+        yield
+    except BaseException:
+        for p, st in before.items():
+            if _stamp(p) != st:
+                with contextlib.suppress(OSError):
+                    os.unlink(p)
+        raise
+
+
+def _stamp(p):
+    try:
+        s = os.stat(p)
+        return (s.st_ino, s.st_mtime_ns, s.st_size)
+    except OSError:
+        return None

@@ -43,7 +43,6 @@ def plot_plan(path, result, dpi: int = 110) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from matplotlib import cm
 
     mesh, dom = result.mesh, result.domain_paths
     uv = result.param.uv
@@ -53,7 +52,7 @@ def plot_plan(path, result, dpi: int = 110) -> None:
     ax0.set_title(f"{dom.pattern}: {len(dom.paths)} paths in the parameter domain", fontsize=10)
     b = np.append(result.param.boundary, result.param.boundary[0])
     ax0.plot(uv[b, 0], uv[b, 1], color="0.3", lw=0.8)
-    cmap = cm.get_cmap("viridis")
+    cmap = matplotlib.colormaps["viridis"]
     n = max(len(dom.paths) - 1, 1)
     step = max(1, len(dom.paths) // 400)
     for i, p in enumerate(dom.paths[::step]):

@@ -1,0 +1,684 @@
+"""Cutter stage: ball-end cutter locations (CL) from cutter-contact (CC) points, gouge-safe.
+
+The cutter is a ball of radius ``r`` on a vertical axis (Z is the tool axis). A tool
+position is given by its ball centre; the programmed point is the tool tip, ``centre - r Z``.
+
+Drop-cutter (the classic CAM primitive, as in OpenCAMLib's ``BallCutter``): for a point
+``(x, y)``, the drop height is the lowest ball-centre height at which the ball touches the
+triangle mesh and does not intersect it, i.e. the ball lowered along -Z until first contact.
+For one triangle it is the largest of three kinds of contact, each valid only if the contact
+point lies on the feature:
+
+- facet: ``c = cc + r n`` with ``n`` the unit facet normal with ``n_z > 0``; the contact
+  ``cc_xy = p - r n_xy`` must lie in the (XY projection of the) triangle; then
+  ``z_c = z_plane(cc_xy) + r n_z``;
+- edge ``a -> b`` (a cylinder of radius ``r`` around the segment): with ``d`` the XY
+  distance from ``p`` to the edge's line, the vertical plane of the edge cuts the ball in a
+  circle of radius ``s = sqrt(r^2 - d^2)``; with ``u0`` the position of ``p`` along the edge
+  (XY length) and ``m`` the edge slope, ``z_c = z_a + m u0 + s sqrt(1 + m^2)``, valid if the
+  contact ``u0 + s m / sqrt(1 + m^2)`` lies in ``[0, |b - a|_xy]``;
+- vertex ``v`` (a sphere): ``z_c = v_z + sqrt(r^2 - |p - v|_xy^2)`` if ``|p - v|_xy <= r``.
+
+The drop height over the mesh is the maximum over the triangles (triangles are two-sided).
+Because the mesh surface equals the union of its triangles, the ball at the drop height
+touches the mesh and intersects no triangle: it cannot gouge the surface.
+
+Speed comes from a uniform XY grid (cells of about ``r/4``) holding, per cell, the
+triangles whose XY bounding box overlaps it, sorted by decreasing top, and the cell's highest
+top ``zmax_C``. A contact at a point ``q`` of cell ``C`` gives at most
+``zmax_C + sqrt(r^2 - dist(p, C)^2)``, so a cell whose bound is below the best height found
+is skipped, and a cell's scan stops at the first triangle whose top gives such a bound.
+A triangle is fully tested only if three upper bounds of its drop height all reach the best
+height: its XY box and top; the ball resting on its infinite plane (``a x + b y + c + r / n_z``);
+and the tangent plane at its centroid of the concave function ``q_z + sqrt(r^2 - |q - p|^2)``
+over the triangle. The previous point's contact triangle (points usually come in path order)
+gives the first height; without one, cells are visited by decreasing bound. All pruning
+uses a slack of 1e-9 mm, so the result is the exact maximum whatever the visiting order
+(bit-identical for shuffled queries or another cell size).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+
+import numpy as np
+from numba import njit, prange
+
+from conformill.errors import MeshError, PlanningError
+
+__all__ = ["BallCutter"]
+
+log = logging.getLogger(__name__)
+
+#: Columns of the per-triangle table ``T`` (after the spatial reorder).
+_X0, _Y0, _Z0, _X1, _Y1, _Z1, _X2, _Y2, _Z2, _NX, _NY, _NZ, _IDET = range(13)
+_NT = 13
+#: A facet whose unit normal has ``|n_z|`` below this is vertical: only its edges and
+#: vertices can be touched (as OpenCAMLib does).
+_VERTICAL_NZ = 1e-12
+#: Below this ``n_z`` the plane and tangent bounds are not used: their slopes ``1 / n_z``
+#: would amplify rounding beyond the pruning slack.
+_BOUND_NZ = 1e-3
+#: Slack (mm) on the pruning bounds so that rounding can never drop a contact that would
+#: raise the result: the answer is then independent of the visiting order.
+_PRUNE_SLACK = 1e-9
+#: Points handled by one thread task (consecutive points share the warm start).
+_CHUNK = 256
+#: Upper bound on grid cells (memory); the cell size grows when exceeded.
+_MAX_CELLS = 4_000_000
+
+
+# --------------------------------------------------------------------------------------
+# numba kernels
+# --------------------------------------------------------------------------------------
+
+
+@njit(cache=True, inline="always")
+def _edge_drop(px, py, r2, ax, ay, az, bx, by, bz):
+    """Centre height of a ball at (px, py) resting on segment a-b; -inf if no contact."""
+    ex = bx - ax
+    ey = by - ay
+    L2 = ex * ex + ey * ey
+    if L2 <= 1e-24:  # vertical edge: its end vertices decide
+        return -np.inf
+    L = math.sqrt(L2)
+    ux = ex / L
+    uy = ey / L
+    wx = px - ax
+    wy = py - ay
+    d = wx * uy - wy * ux
+    d2 = d * d
+    if d2 > r2:
+        return -np.inf
+    s = math.sqrt(r2 - d2)
+    u0 = wx * ux + wy * uy
+    m = (bz - az) / L
+    k = math.sqrt(1.0 + m * m)
+    ucc = u0 + s * m / k
+    if ucc < 0.0 or ucc > L:
+        return -np.inf
+    return az + m * u0 + s * k
+
+
+@njit(cache=True)
+def _tri_drop(px, py, r, r2, T, t):
+    """Drop height of the ball centre onto triangle ``t`` (facet, edges, vertices)."""
+    x0 = T[t, _X0]
+    y0 = T[t, _Y0]
+    z0 = T[t, _Z0]
+    x1 = T[t, _X1]
+    y1 = T[t, _Y1]
+    z1 = T[t, _Z1]
+    x2 = T[t, _X2]
+    y2 = T[t, _Y2]
+    z2 = T[t, _Z2]
+    # facet first: when its contact lies in the triangle it is the answer, since the
+    # triangle lies in that plane and the ball cannot rest higher on a subset of it
+    nz = T[t, _NZ]
+    if nz > _VERTICAL_NZ:
+        nx = T[t, _NX]
+        ny = T[t, _NY]
+        cx = px - r * nx
+        cy = py - r * ny
+        idet = T[t, _IDET]
+        # barycentric coordinates of the contact in the XY projection
+        l1 = ((cx - x0) * (y2 - y0) - (cy - y0) * (x2 - x0)) * idet
+        l2 = ((x1 - x0) * (cy - y0) - (y1 - y0) * (cx - x0)) * idet
+        if l1 >= 0.0 and l2 >= 0.0 and l1 + l2 <= 1.0:
+            return z0 - (nx * (cx - x0) + ny * (cy - y0)) / nz + r * nz
+    best = -np.inf
+    # vertices (spheres)
+    dx = px - x0
+    dy = py - y0
+    q = dx * dx + dy * dy
+    if q <= r2:
+        best = max(best, z0 + math.sqrt(r2 - q))
+    dx = px - x1
+    dy = py - y1
+    q = dx * dx + dy * dy
+    if q <= r2:
+        best = max(best, z1 + math.sqrt(r2 - q))
+    dx = px - x2
+    dy = py - y2
+    q = dx * dx + dy * dy
+    if q <= r2:
+        best = max(best, z2 + math.sqrt(r2 - q))
+    # edges (cylinders)
+    best = max(best, _edge_drop(px, py, r2, x0, y0, z0, x1, y1, z1))
+    best = max(best, _edge_drop(px, py, r2, x1, y1, z1, x2, y2, z2))
+    best = max(best, _edge_drop(px, py, r2, x2, y2, z2, x0, y0, z0))
+    return best
+
+
+@njit(cache=True, inline="always")
+def _tangent_bound(px, py, r2, T, B, t):
+    """Upper bound of the drop height onto triangle ``t`` (``+inf`` when not applicable).
+
+    Over the triangle, the height of a ball touching point ``q`` is
+    ``f(q) = z(q) + sqrt(r^2 - |q - p|^2)``: a linear function plus a concave one, so
+    ``f`` is concave and lies below its tangent plane at the centroid ``c``; the largest
+    value of that plane over the triangle is at a vertex.
+    """
+    if not B[t, 7] < np.inf:  # (nearly) vertical facet: no usable slope
+        return np.inf
+    cx = B[t, 8]
+    cy = B[t, 9]
+    dx = cx - px
+    dy = cy - py
+    w2 = r2 - dx * dx - dy * dy
+    if w2 <= 1e-3 * r2:  # centroid out of reach or at the rim: steep, useless bound
+        return np.inf
+    w = math.sqrt(w2)
+    gx = B[t, 5] - dx / w
+    gy = B[t, 6] - dy / w
+    m = gx * (T[t, _X0] - cx) + gy * (T[t, _Y0] - cy)
+    m = max(m, gx * (T[t, _X1] - cx) + gy * (T[t, _Y1] - cy))
+    m = max(m, gx * (T[t, _X2] - cx) + gy * (T[t, _Y2] - cy))
+    return B[t, 10] + w + m
+
+
+@njit(cache=True, inline="always")
+def _scan_cell(px, py, r, r2, T, B, cstart, ctri, EB, c, hc, best, besttri):
+    """Test the triangles of cell ``c`` (``hc = sqrt(r^2 - dist(p, cell)^2)``)."""
+    for e in range(cstart[c], cstart[c + 1]):
+        # triangles are sorted by decreasing top: a contact *inside this cell* of this or
+        # any later triangle is at most top + hc (contacts elsewhere are found through the
+        # cells that hold them)
+        gap = best - _PRUNE_SLACK - EB[e, 4]  # how far the ball must reach above the top
+        if gap > hc:
+            break
+        # cheap bound from the triangle's XY box and top: top + sqrt(r^2 - q) < best
+        dx = 0.0
+        if px < EB[e, 0]:
+            dx = EB[e, 0] - px
+        elif px > EB[e, 2]:
+            dx = px - EB[e, 2]
+        dy = 0.0
+        if py < EB[e, 1]:
+            dy = EB[e, 1] - py
+        elif py > EB[e, 3]:
+            dy = py - EB[e, 3]
+        q = dx * dx + dy * dy
+        if q > r2:
+            continue
+        if gap > 0.0 and gap * gap > r2 - q:
+            continue
+        t = ctri[e]
+        # the ball resting on the triangle's (infinite) plane is never lower
+        if B[t, 5] * px + B[t, 6] * py + B[t, 7] + _PRUNE_SLACK < best:
+            continue
+        if _tangent_bound(px, py, r2, T, B, t) + _PRUNE_SLACK < best:
+            continue
+        h = _tri_drop(px, py, r, r2, T, t)
+        if h > best:
+            best = h
+            besttri = t
+    return best, besttri
+
+
+@njit(cache=True)
+def _drop_point(px, py, r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB,
+                warm, cid, cbound):
+    """Drop height at one point; returns (height, contact triangle or -1).
+
+    With a warm start (the previous point's contact triangle) the cells are scanned in
+    grid order, each skipped when its bound is below the best height; without one they are
+    visited by decreasing bound, which finds a good height sooner.
+    """
+    best = -np.inf
+    besttri = -1
+    if warm >= 0:
+        h = _tri_drop(px, py, r, r2, T, warm)
+        if h > best:
+            best = h
+            besttri = warm
+    i0 = int(math.floor((px - r - gx0) / cell))
+    i1 = int(math.floor((px + r - gx0) / cell))
+    j0 = int(math.floor((py - r - gy0) / cell))
+    j1 = int(math.floor((py + r - gy0) / cell))
+    if i1 < 0 or j1 < 0 or i0 >= ncx or j0 >= ncy:
+        return best, besttri
+    i0 = max(i0, 0)
+    j0 = max(j0, 0)
+    i1 = min(i1, ncx - 1)
+    j1 = min(j1, ncy - 1)
+    ordered = best == -np.inf
+    n = 0
+    for j in range(j0, j1 + 1):
+        cy0 = gy0 + j * cell
+        dy = 0.0
+        if py < cy0:
+            dy = cy0 - py
+        elif py > cy0 + cell:
+            dy = py - cy0 - cell
+        for i in range(i0, i1 + 1):
+            c = j * ncx + i
+            if cstart[c] == cstart[c + 1]:
+                continue
+            cx0 = gx0 + i * cell
+            dx = 0.0
+            if px < cx0:
+                dx = cx0 - px
+            elif px > cx0 + cell:
+                dx = px - cx0 - cell
+            q = dx * dx + dy * dy
+            if q > r2:
+                continue
+            if ordered:
+                cid[n] = c
+                cbound[n] = czmax[c] + math.sqrt(r2 - q)
+                n += 1
+            else:
+                gap = best - _PRUNE_SLACK - czmax[c]
+                if gap > 0.0 and gap * gap > r2 - q:
+                    continue
+                best, besttri = _scan_cell(px, py, r, r2, T, B, cstart, ctri, EB, c,
+                                           math.sqrt(r2 - q), best, besttri)
+    # cold start: visit cells by decreasing bound; stop when no cell can raise the best
+    while n > 0:
+        k = 0
+        bmax = cbound[0]
+        for m in range(1, n):
+            if cbound[m] > bmax:
+                bmax = cbound[m]
+                k = m
+        if bmax + _PRUNE_SLACK < best:
+            break
+        c = cid[k]
+        n -= 1
+        cid[k] = cid[n]
+        cbound[k] = cbound[n]
+        best, besttri = _scan_cell(px, py, r, r2, T, B, cstart, ctri, EB, c,
+                                   bmax - czmax[c], best, besttri)
+    return best, besttri
+
+
+@njit(cache=True, parallel=True)
+def _drop_many(xy, r, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, maxwin):
+    k = xy.shape[0]
+    out = np.empty(k, dtype=np.float64)
+    nchunks = (k + _CHUNK - 1) // _CHUNK
+    r2 = r * r
+    for ch in prange(nchunks):
+        cid = np.empty(maxwin, dtype=np.int64)
+        cbound = np.empty(maxwin, dtype=np.float64)
+        warm = -1
+        for p in range(ch * _CHUNK, min(k, (ch + 1) * _CHUNK)):
+            h, t = _drop_point(xy[p, 0], xy[p, 1], r, r2, T, B, gx0, gy0, cell, ncx, ncy,
+                               cstart, ctri, czmax, EB, warm, cid, cbound)
+            out[p] = h
+            if t >= 0:
+                warm = t
+    return out
+
+
+@njit(cache=True)
+def _build_grid(B, gx0, gy0, cell, ncx, ncy):
+    """CSR lists of triangles per cell (by XY box overlap) and the cells' highest top."""
+    m = B.shape[0]
+    counts = np.zeros(ncx * ncy + 1, dtype=np.int64)
+    for t in range(m):
+        i0 = min(max(int((B[t, 0] - gx0) / cell), 0), ncx - 1)
+        i1 = min(max(int((B[t, 2] - gx0) / cell), 0), ncx - 1)
+        j0 = min(max(int((B[t, 1] - gy0) / cell), 0), ncy - 1)
+        j1 = min(max(int((B[t, 3] - gy0) / cell), 0), ncy - 1)
+        for j in range(j0, j1 + 1):
+            for i in range(i0, i1 + 1):
+                counts[j * ncx + i + 1] += 1
+    cstart = np.cumsum(counts)
+    fill = cstart[:-1].copy()
+    ctri = np.empty(cstart[-1], dtype=np.int32)
+    czmax = np.full(ncx * ncy, -np.inf)
+    for t in range(m):
+        i0 = min(max(int((B[t, 0] - gx0) / cell), 0), ncx - 1)
+        i1 = min(max(int((B[t, 2] - gx0) / cell), 0), ncx - 1)
+        j0 = min(max(int((B[t, 1] - gy0) / cell), 0), ncy - 1)
+        j1 = min(max(int((B[t, 3] - gy0) / cell), 0), ncy - 1)
+        for j in range(j0, j1 + 1):
+            for i in range(i0, i1 + 1):
+                c = j * ncx + i
+                ctri[fill[c]] = t
+                fill[c] += 1
+                if B[t, 4] > czmax[c]:
+                    czmax[c] = B[t, 4]
+    # highest triangles first in each cell, so that a cell's scan can stop early
+    for c in range(ncx * ncy):
+        s0 = cstart[c]
+        s1 = cstart[c + 1]
+        if s1 - s0 > 1:
+            seg = ctri[s0:s1].copy()
+            o = np.argsort(-B[seg, 4], kind="mergesort")
+            for e in range(s1 - s0):
+                ctri[s0 + e] = seg[o[e]]
+    # the XY box and top of every entry, in entry order: the scan reads memory in sequence
+    EB = np.empty((ctri.shape[0], 5), dtype=np.float64)
+    for e in range(ctri.shape[0]):
+        for q in range(5):
+            EB[e, q] = B[ctri[e], q]
+    return cstart, ctri, czmax, EB
+
+
+# --------------------------------------------------------------------------------------
+# public API
+# --------------------------------------------------------------------------------------
+
+
+class BallCutter:
+    """Ball-end cutter of radius ``radius`` against a triangle mesh: drop-cutter and CC -> CL.
+
+    The spatial index is built once; every query is numba-parallel over points.
+
+    Parameters
+    ----------
+    V : (n, 3) float64
+        Vertex positions, mm.
+    F : (m, 3) int64
+        Triangles (orientation does not matter: triangles are two-sided).
+    radius : float
+        Ball radius ``r``, mm.
+    cell : float, optional
+        Grid cell size (mm); default ``max(r / 4, median triangle XY extent / 2)``.
+
+    Raises
+    ------
+    MeshError
+        Bad vertex or face arrays (shape, non-finite values, indices out of range, no faces).
+    PlanningError
+        Radius not positive and finite.
+
+    Notes
+    -----
+    Drop-cutter as in OpenCAMLib's ``BallCutter`` (facet, edge and vertex tests); agreement
+    with ``ocl.BatchDropCutter`` is measured in ``benchmarks/bench_cutter.py``.
+    """
+
+    def __init__(self, V, F, radius: float, cell: float | None = None):
+        V = np.asarray(V, dtype=np.float64)
+        F = np.asarray(F)
+        if V.ndim != 2 or V.shape[1] != 3:
+            raise MeshError(f"cutter: vertices must be (n, 3), got shape {V.shape}")
+        if F.ndim != 2 or F.shape[1] != 3 or F.shape[0] == 0:
+            raise MeshError(f"cutter: faces must be (m, 3) with m >= 1, got shape {F.shape}")
+        if not np.issubdtype(F.dtype, np.integer):
+            raise MeshError(f"cutter: faces must be integers, got dtype {F.dtype}")
+        bad = np.flatnonzero(~np.isfinite(V).all(axis=1))
+        if bad.size:
+            raise MeshError(f"cutter: {bad.size} vertices have non-finite coordinates (first: vertex {bad[0]})")
+        F = F.astype(np.int64)
+        out = np.flatnonzero(((F < 0) | (F >= V.shape[0])).any(axis=1))
+        if out.size:
+            raise MeshError(f"cutter: face {out[0]} has a vertex index out of range "
+                            f"[0, {V.shape[0]}): {F[out[0]].tolist()}")
+        radius = float(radius)
+        if not (math.isfinite(radius) and radius > 0):
+            raise PlanningError(f"cutter: ball radius must be positive and finite, got {radius}")
+        self.radius = radius
+
+        P = V[F]  # (m, 3, 3)
+        lo = P.min(axis=1)
+        hi = P.max(axis=1)
+        ext = np.maximum(hi[:, 0] - lo[:, 0], hi[:, 1] - lo[:, 1])
+        if cell is None:
+            cell = max(radius / 4.0, 0.5 * float(np.median(ext)))
+        cell = float(cell)
+        if not (math.isfinite(cell) and cell > 0):
+            raise PlanningError(f"cutter: grid cell size must be positive and finite, got {cell}")
+        gmin = lo[:, :2].min(axis=0)
+        gmax = hi[:, :2].max(axis=0)
+        span = np.maximum(gmax - gmin, cell)
+        while np.prod(np.ceil(span / cell) + 1) > _MAX_CELLS:
+            cell *= 1.5
+        ncx, ncy = (int(v) for v in np.ceil(span / cell) + 1)
+
+        # spatial reorder so that a cell's triangles sit close together in memory
+        cen = P.mean(axis=1)
+        key = (np.floor((cen[:, 1] - gmin[1]) / cell).astype(np.int64) * ncx
+               + np.floor((cen[:, 0] - gmin[0]) / cell).astype(np.int64))
+        order = np.argsort(key, kind="stable")
+        P = P[order]
+        lo = lo[order]
+        hi = hi[order]
+
+        e1 = P[:, 1] - P[:, 0]
+        e2 = P[:, 2] - P[:, 0]
+        n = np.cross(e1, e2)
+        nn = np.linalg.norm(n, axis=1)
+        n = np.divide(n, nn[:, None], out=np.zeros_like(n), where=nn[:, None] > 0)
+        n[n[:, 2] < 0] *= -1.0  # two-sided: the ball comes from above
+        det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
+        with np.errstate(divide="ignore"):
+            idet = np.where(np.abs(det) > 0, 1.0 / np.where(det == 0, 1.0, det), 0.0)
+        vertical = (n[:, 2] <= _VERTICAL_NZ) | (idet == 0)
+        n[vertical, 2] = 0.0  # facet test off; edges and vertices still apply
+        T = np.empty((len(P), _NT), dtype=np.float64)
+        T[:, :9] = P.reshape(-1, 9)
+        T[:, _NX:_NZ + 1] = n
+        T[:, _IDET] = idet
+        # plane bound: the ball on the facet's plane sits at a x + b y + c + r / n_z
+        steep = n[:, 2] < _BOUND_NZ
+        nz_safe = np.where(steep, 1.0, n[:, 2])
+        pa = np.where(steep, 0.0, -n[:, 0] / nz_safe)
+        pb = np.where(steep, 0.0, -n[:, 1] / nz_safe)
+        pc = np.where(steep, np.inf,
+                      P[:, 0, 2] + (n[:, 0] * P[:, 0, 0] + n[:, 1] * P[:, 0, 1]) / nz_safe + radius / nz_safe)
+        B = np.column_stack([lo[:, 0], lo[:, 1], hi[:, 0], hi[:, 1], hi[:, 2], pa, pb, pc,
+                             P[:, :, 0].mean(1), P[:, :, 1].mean(1), P[:, :, 2].mean(1)])
+        self._T = np.ascontiguousarray(T)  # (m, 13): vertices, unit up normal, 1 / det_xy
+        self._B = np.ascontiguousarray(B)  # (m, 11): xy box, top z, plane-bound coefficients, centroid
+        self._order = order
+        self._grid = (float(gmin[0]), float(gmin[1]), cell, ncx, ncy)
+        self._cstart, self._ctri, self._czmax, self._EB = _build_grid(self._B, gmin[0], gmin[1], cell, ncx, ncy)
+        w = int(math.ceil(2 * radius / cell)) + 2
+        self._maxwin = w * w
+        log.debug("BallCutter: %d triangles, grid %d x %d cells of %.3g mm, %d entries",
+                  len(P), ncx, ncy, cell, len(self._ctri))
+
+    # ------------------------------------------------------------------ drop-cutter
+    def drop(self, xy) -> np.ndarray:
+        """Drop-cutter: lowest ball-centre height touching, not intersecting, the mesh.
+
+        Parameters
+        ----------
+        xy : (k, 2) float64
+            Query points (ball-centre XY), mm.
+
+        Returns
+        -------
+        z_center : (k,) float64
+            Ball-centre heights; ``-inf`` where the ball (XY distance ``<= r``) touches no
+            triangle.
+
+        Raises
+        ------
+        PlanningError
+            ``xy`` is not ``(k, 2)`` or holds non-finite values.
+        """
+        xy = _as_points(xy, 2, "xy")
+        if xy.shape[0] == 0:
+            return np.empty(0, dtype=np.float64)
+        gx0, gy0, cell, ncx, ncy = self._grid
+        return _drop_many(xy, self.radius, self._T, self._B, gx0, gy0, cell, ncx, ncy,
+                          self._cstart, self._ctri, self._czmax, self._EB, self._maxwin)
+
+    # ------------------------------------------------------------------ CC -> CL
+    def cl_from_cc(self, cc, n):
+        """Ball centres for cutter-contact points, lifted so that the ball cannot gouge.
+
+        The ideal centre is ``cc + r n`` (the ball touches the surface at ``cc``); its XY is
+        kept and its Z replaced by :meth:`drop` there. Since the ball at ``cc + r n``
+        touches the mesh at ``cc`` (for ``n_z >= 0``), ``drop >= (cc + r n)_z`` and the lift
+        is non-negative up to rounding; it is zero where the surface near ``cc`` is smooth
+        on the scale of the ball and ``n`` is the true normal.
+
+        Parameters
+        ----------
+        cc : (k, 3) float64
+            Cutter-contact points on the mesh, mm.
+        n : (k, 3) float64
+            Normals towards the tool (normalised here).
+
+        Returns
+        -------
+        center : (k, 3) float64
+            Ball centres.
+        lift : (k,) float64
+            ``drop - (cc + r n)_z``, mm: large values mean the normal was poor, the surface
+            curves tighter than the ball (concave, radius < r) or ``cc`` is not reachable.
+
+        Raises
+        ------
+        PlanningError
+            Shapes differ, values are not finite, a normal has zero length, or a centre
+            touches no triangle (the CC point is not on the mesh).
+        """
+        cc = _as_points(cc, 3, "cc")
+        n = _as_points(n, 3, "n")
+        if cc.shape != n.shape:
+            raise PlanningError(f"cutter: cc and n must have the same shape, got {cc.shape} and {n.shape}")
+        ln = np.linalg.norm(n, axis=1)
+        zero = np.flatnonzero(ln < 1e-12)
+        if zero.size:
+            raise PlanningError(f"cutter: {zero.size} normals have zero length (first: point {zero[0]})")
+        ideal = cc + self.radius * (n / ln[:, None])
+        z = self.drop(ideal[:, :2])
+        miss = np.flatnonzero(~np.isfinite(z))
+        if miss.size:
+            i = miss[0]
+            raise PlanningError(
+                f"cutter: {miss.size} cutter-contact points are not within the ball's reach of the mesh "
+                f"(first: point {i}, cc = {cc[i].tolist()})")
+        center = ideal.copy()
+        center[:, 2] = z
+        return center, z - ideal[:, 2]
+
+    # ------------------------------------------------------------------ chords
+    def refine(self, centers, tol: float, step: float | None = None, max_iter: int = 40):
+        """Insert drop-cutter points where a straight centre move would dip below the drop surface.
+
+        A linear move between two safe ball centres can still cut into the part where the
+        drop surface ``D`` (the highest safe centre height) bulges above the chord: convex
+        regions and creases. Each segment is sampled every ``step`` (XY length); where the
+        chord lies below ``D`` by more than ``tol / 2`` at a sample, the worst sample
+        ``(x, y, D)`` is inserted; repeated until no segment violates (at most ``max_iter``
+        rounds; the last round inserts every violating sample).
+
+        Between samples the chord error can grow by at most ``step^2 / (8 rho)`` where
+        ``rho`` is the curvature radius of ``D`` along the move (``rho >= r`` on facets, edges
+        and smooth regions; smaller only near vertex contacts at the rim of the ball); the
+        default ``step = sqrt(r tol)`` keeps that below ``tol / 2`` for ``rho >= r / 4``.
+
+        Parameters
+        ----------
+        centers : (k, 3) float64
+            Ball centres of one continuous pass, on or above the drop surface.
+        tol : float
+            Allowed dip of the centre path below the drop surface, mm.
+        step : float, optional
+            Sampling interval along each move (XY), mm.
+        max_iter : int
+
+        Returns
+        -------
+        centers : (k', 3) float64
+            The input points (unchanged, same order) with the inserted drop points.
+
+        Raises
+        ------
+        PlanningError
+            Bad shapes, non-finite values, ``tol`` or ``step`` not positive.
+        """
+        P = _as_points(centers, 3, "centers")
+        tol = float(tol)
+        if not (math.isfinite(tol) and tol > 0):
+            raise PlanningError(f"cutter: refine tolerance must be positive, got {tol}")
+        if step is None:
+            step = math.sqrt(self.radius * tol)
+        step = float(step)
+        if not (math.isfinite(step) and step > 0):
+            raise PlanningError(f"cutter: refine step must be positive, got {step}")
+        if len(P) < 2:
+            return P.copy()
+        thresh = 0.5 * tol
+        check = np.ones(len(P) - 1, dtype=bool)
+        for it in range(max_iter):
+            last = it == max_iter - 1
+            seg = np.flatnonzero(check)
+            if seg.size == 0:
+                break
+            a = P[seg]
+            b = P[seg + 1]
+            lxy = np.hypot(b[:, 0] - a[:, 0], b[:, 1] - a[:, 1])
+            ns = np.ceil(lxy / step).astype(np.int64) - 1  # interior samples per segment
+            ns = np.maximum(ns, 0)
+            tot = int(ns.sum())
+            if tot == 0:
+                break
+            owner = np.repeat(np.arange(seg.size), ns)
+            first = np.cumsum(ns) - ns
+            j = np.arange(tot) - first[owner] + 1
+            t = j / (ns[owner] + 1.0)
+            S = a[owner] + t[:, None] * (b[owner] - a[owner])
+            D = self.drop(S[:, :2])
+            v = D - S[:, 2]  # -inf where the ball leaves the mesh: never a violation
+            bad = v > thresh
+            if not bad.any():
+                check[:] = False
+                break
+            if last:
+                ins_idx = np.flatnonzero(bad)
+            else:
+                # the worst sample of every violating segment
+                vv = np.where(bad, v, -np.inf)
+                o = np.lexsort((-vv, owner))
+                firsts = o[np.r_[0, np.flatnonzero(np.diff(owner[o])) + 1]]
+                ins_idx = firsts[bad[firsts]]
+            ins_idx = np.sort(ins_idx)  # by (segment, position along it)
+            newpts = S[ins_idx].copy()
+            newpts[:, 2] = D[ins_idx]
+            after = seg[owner[ins_idx]]  # insert after point index `after`
+            P, check = _insert(P, check, after, newpts, recheck=not last)
+            if last:
+                log.warning("cutter.refine: stopped after %d rounds; %d points inserted in the last round",
+                            max_iter, len(ins_idx))
+        return P
+
+    # ------------------------------------------------------------------ tool tip
+    def tip(self, centers) -> np.ndarray:
+        """Tool-tip points (the programmed point): ``centers - r Z``, ``(k, 3)``."""
+        P = _as_points(centers, 3, "centers")
+        out = P.copy()
+        out[:, 2] -= self.radius
+        return out
+
+
+def _insert(P, check, after, newpts, recheck):
+    """Insert ``newpts`` after rows ``after`` (sorted); return points and segment flags.
+
+    Segments touching an inserted point are flagged for re-checking; the others keep
+    ``False`` (already verified).
+    """
+    k = len(P)
+    m = len(after)
+    # position of every old point in the new array: shifted by inserts before it
+    shift = np.searchsorted(after, np.arange(k), side="left")  # inserts with after < i
+    newpos_old = np.arange(k) + shift
+    newpos_ins = after + np.arange(m) + 1
+    Q = np.empty((k + m, 3), dtype=np.float64)
+    Q[newpos_old] = P
+    Q[newpos_ins] = newpts
+    chk = np.zeros(k + m - 1, dtype=bool)
+    if recheck:
+        chk[newpos_ins - 1] = True
+        chk[newpos_ins] = True
+    return Q, chk
+
+
+def _as_points(a, dim: int, name: str) -> np.ndarray:
+    a = np.asarray(a, dtype=np.float64)
+    if a.ndim != 2 or a.shape[1] != dim:
+        raise PlanningError(f"cutter: {name} must be (k, {dim}), got shape {a.shape}")
+    bad = np.flatnonzero(~np.isfinite(a).all(axis=1))
+    if bad.size:
+        raise PlanningError(f"cutter: {name} has {bad.size} non-finite rows (first: row {bad[0]})")
+    return np.ascontiguousarray(a)

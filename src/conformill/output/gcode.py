@@ -1,0 +1,268 @@
+"""G-code writer: a :class:`~conformill.types.ToolPath` as a plain RS274NGC program.
+
+The program is what LinuxCNC's interpreter accepts (checked with its stand-alone ``rs274``
+in ``tests/test_gcode_rs274.py``), with no ``%`` delimiters, and it looks like this::
+
+    (conformill 0.1.0)
+    (param tool_radius: 4)              one comment per header entry
+    G21 G90 G17 G94                     mm, absolute, XY plane, feed per minute
+    G40 G49 G80                         no cutter compensation, no tool length offset, no cycle
+    M3 S12000                           only when a spindle speed is given
+    G0 Z25.0000
+    G0 X.. Y..                          for every pass: rapid at safe Z above its start,
+    G1 Z.. F<plunge>                    vertical plunge to the pass start,
+    G1 X.. Y.. Z.. F<feed>              cut moves (F only when it changes),
+    G0 Z25.0000                         vertical retract
+    M5
+    M30
+
+Rapids (``G0``) are only at the clearance height ``safe_z`` or vertical retracts to it.
+Coordinates have 4 decimals (0.1 micron); ``-0.0000`` is written ``0.0000``; a cut move
+whose rounded coordinates equal the current position is dropped, and unchanged axis words
+are left out (they are modal). The output is a deterministic function of the inputs.
+
+Header comments never start with a word that LinuxCNC treats as an active comment
+(``MSG``, ``DEBUG``, ``PRINT``, ``LOG...``, ``PROBEOPEN``, ``PY``...): each is written as
+``(param KEY: VALUE)`` with parentheses replaced by brackets, non-ASCII characters
+transliterated or replaced by ``?``, control characters by spaces, and long values cut.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import unicodedata
+
+import numpy as np
+
+from conformill.errors import OutputError, PlanningError
+from conformill.output.atomic import atomic_path
+
+__all__ = ["format_gcode", "write_gcode"]
+
+#: Decimal places of coordinates (mm).
+DECIMALS = 4
+_SCALE = 10**DECIMALS
+#: RS274NGC limits a line to 255 characters; keep comments well inside.
+_MAX_COMMENT = 200
+
+
+def format_gcode(toolpath, *, feed: float, plunge_feed: float | None = None,
+                 spindle: float | None = None, header: dict | None = None) -> str:
+    """The RS274NGC program of a tool path, as text (pure; see the module docstring).
+
+    Parameters
+    ----------
+    toolpath : conformill.types.ToolPath
+        ``passes``: list of ``(k, 3)`` tool-tip polylines, each cut at feed;
+        ``safe_z``: clearance height for rapids.
+    feed : float
+        Cutting feed, mm/min.
+    plunge_feed : float, optional
+        Feed of the vertical plunge to each pass start, mm/min (default: ``feed``).
+    spindle : float, optional
+        Spindle speed (rpm) for ``M3 S..``; no ``M3`` when None.
+    header : dict, optional
+        Parameters written as comments, in the given order.
+
+    Returns
+    -------
+    str
+        The program, ``\\n`` line ends, ending with a newline.
+
+    Raises
+    ------
+    PlanningError
+        No passes, a pass that is not ``(k, 3)`` finite with ``k >= 1``, a point above
+        ``safe_z``, a non-finite ``safe_z``, or a feed/speed that is not positive.
+    """
+    text, _ = _program(toolpath, feed, plunge_feed, spindle, header)
+    return text
+
+
+def write_gcode(path, toolpath, *, feed: float, plunge_feed: float | None = None,
+                spindle: float | None = None, header: dict | None = None) -> dict:
+    """Write the program of :func:`format_gcode` to ``path`` atomically; return its statistics.
+
+    Returns
+    -------
+    dict
+        ``passes``, ``cut_points`` (points of the passes), ``cut_moves`` (``G1`` cut lines
+        written), ``feed_length_mm`` (cut moves), ``plunge_length_mm``, ``rapid_length_mm``
+        (rapids between passes and retracts; the first rapid from the unknown machine
+        position is not counted), ``machining_time_min`` (cut and plunge moves at their
+        feeds; rapids excluded), ``n_lines``, ``bytes``.
+
+    Raises
+    ------
+    PlanningError
+        See :func:`format_gcode`.
+    OutputError
+        The folder does not exist or the file cannot be written (no file is left behind).
+    """
+    text, stats = _program(toolpath, feed, plunge_feed, spindle, header)
+    data = text.encode("ascii")
+    with atomic_path(path) as tmp:
+        try:
+            with open(tmp, "wb") as fh:
+                fh.write(data)
+        except OSError as exc:
+            raise OutputError(f"cannot write {path}: {exc.strerror}") from None
+    stats["bytes"] = len(data)
+    return stats
+
+
+# --------------------------------------------------------------------------------------
+
+
+def _positive(name, value):
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise PlanningError(f"G-code: {name} must be a number, got {value!r}") from None
+    if not (math.isfinite(v) and v > 0):
+        raise PlanningError(f"G-code: {name} must be positive and finite, got {value!r}")
+    return v
+
+
+def _num(t: int) -> str:
+    """Fixed-point text of an integer number of 1e-4 mm (``0`` is never negative)."""
+    sign = "-" if t < 0 else ""
+    q, r = divmod(abs(t), _SCALE)
+    return f"{sign}{q}.{r:0{DECIMALS}d}"
+
+
+def _ticks(a) -> np.ndarray:
+    """Coordinates rounded to integer multiples of 1e-4 mm (half to even)."""
+    return np.rint(np.asarray(a, dtype=np.float64) * _SCALE).astype(np.int64)
+
+
+def _feed_word(f: float) -> str:
+    s = f"{f:.3f}".rstrip("0").rstrip(".")
+    return "F" + s
+
+
+def _clean_comment(text: str) -> str:
+    """ASCII, no parentheses or control characters, bounded length."""
+    text = unicodedata.normalize("NFKD", str(text))
+    text = "".join(ch if ord(ch) < 128 else ("" if unicodedata.combining(ch) else "?") for ch in text)
+    text = text.replace("(", "[").replace(")", "]")
+    text = re.sub(r"[\x00-\x1f\x7f]", " ", text)
+    text = re.sub(r" +", " ", text).strip()
+    if len(text) > _MAX_COMMENT:
+        text = text[: _MAX_COMMENT - 3] + "..."
+    return text
+
+
+def _header_value(v) -> str:
+    if isinstance(v, (float, np.floating)):
+        return repr(float(v)) if math.isfinite(float(v)) else str(float(v))
+    if isinstance(v, np.ndarray):
+        v = v.tolist()
+    return str(v)
+
+
+def _program(toolpath, feed, plunge_feed, spindle, header):
+    from conformill import __version__
+
+    feed = _positive("feed", feed)
+    plunge = feed if plunge_feed is None else _positive("plunge_feed", plunge_feed)
+    if spindle is not None:
+        spindle = _positive("spindle", spindle)
+    try:
+        safe_z = float(toolpath.safe_z)
+    except (TypeError, ValueError, AttributeError):
+        raise PlanningError("G-code: the tool path has no numeric safe_z") from None
+    if not math.isfinite(safe_z):
+        raise PlanningError(f"G-code: safe_z must be finite, got {safe_z}")
+    passes = list(getattr(toolpath, "passes", []) or [])
+    if not passes:
+        raise PlanningError("G-code: the tool path has no passes")
+    header = {} if header is None else dict(header)
+
+    safe_t = int(_ticks(safe_z))
+    safe_s = _num(safe_t)
+    lines = [f"(conformill {_clean_comment(__version__)})"]
+    for k, v in header.items():
+        lines.append(f"(param {_clean_comment(k)}: {_clean_comment(_header_value(v))})")
+    lines.append("G21 G90 G17 G94")
+    lines.append("G40 G49 G80")
+    if spindle is not None:
+        s = int(spindle) if float(spindle).is_integer() else spindle
+        lines.append(f"M3 S{s}" if isinstance(s, int) else f"M3 S{s:.1f}")
+    lines.append(f"G0 Z{safe_s}")
+
+    fw_feed = _feed_word(feed)
+    fw_plunge = _feed_word(plunge)
+    cur_f = None
+    feed_len = plunge_len = rapid_len = 0.0
+    cut_points = cut_moves = 0
+    prev_xy = None  # tool XY after the last retract (ticks)
+    for ip, P in enumerate(passes):
+        P = np.asarray(P, dtype=np.float64)
+        if P.ndim != 2 or P.shape[1] != 3 or P.shape[0] == 0:
+            raise PlanningError(f"G-code: pass {ip} must be (k, 3) with k >= 1, got shape {P.shape}")
+        bad = np.flatnonzero(~np.isfinite(P).all(axis=1))
+        if bad.size:
+            raise PlanningError(f"G-code: pass {ip} point {bad[0]} is not finite: {P[bad[0]].tolist()}")
+        Q = _ticks(P)
+        above = np.flatnonzero(Q[:, 2] > safe_t)
+        if above.size:
+            i = above[0]
+            raise PlanningError(
+                f"G-code: pass {ip} point {i} is above the clearance height: z = {P[i, 2]:.4f} > safe_z = {safe_z:.4f}")
+        cut_points += len(P)
+        x0, y0, z0 = (int(v) for v in Q[0])
+        # rapid at safe Z to above the pass start, then vertical plunge
+        lines.append(f"G0 X{_num(x0)} Y{_num(y0)}")
+        if prev_xy is not None:
+            rapid_len += math.hypot(x0 - prev_xy[0], y0 - prev_xy[1]) / _SCALE
+        fw = fw_plunge if cur_f != fw_plunge else ""
+        cur_f = fw_plunge
+        lines.append(f"G1 Z{_num(z0)}" + (f" {fw}" if fw else ""))
+        plunge_len += (safe_t - z0) / _SCALE
+        # cut moves: only axes that change; moves that change nothing are dropped
+        if len(Q) > 1:
+            D = np.diff(Q, axis=0)
+            moved = (D != 0).any(axis=1)
+            Qm = Q[1:][moved]
+            prev = np.vstack([Q[:1], Qm[:-1]])
+            ch = Qm != prev
+            seg = (Qm - prev) / _SCALE
+            feed_len += float(np.sqrt((seg * seg).sum(axis=1)).sum())
+            cut_moves += len(Qm)
+            first = True
+            for q, c in zip(Qm.tolist(), ch.tolist()):
+                words = ["G1"]
+                if c[0]:
+                    words.append("X" + _num(q[0]))
+                if c[1]:
+                    words.append("Y" + _num(q[1]))
+                if c[2]:
+                    words.append("Z" + _num(q[2]))
+                if first and cur_f != fw_feed:
+                    words.append(fw_feed)
+                    cur_f = fw_feed
+                first = False
+                lines.append(" ".join(words))
+            last = Qm[-1] if len(Qm) else Q[0]
+        else:
+            last = Q[0]
+        lines.append(f"G0 Z{safe_s}")
+        rapid_len += (safe_t - int(last[2])) / _SCALE
+        prev_xy = (int(last[0]), int(last[1]))
+    lines.append("M5")
+    lines.append("M30")
+    text = "\n".join(lines) + "\n"
+    time_min = feed_len / feed + plunge_len / plunge
+    stats = {
+        "passes": len(passes),
+        "cut_points": cut_points,
+        "cut_moves": cut_moves,
+        "feed_length_mm": feed_len,
+        "plunge_length_mm": plunge_len,
+        "rapid_length_mm": rapid_len,
+        "machining_time_min": time_min,
+        "n_lines": len(lines),
+    }
+    return text, stats

@@ -1,0 +1,405 @@
+"""Ball-end cutter: drop-cutter against closed forms, OpenCAMLib and a brute-force oracle;
+CC -> CL; gouge-safe chord refinement."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from conformill.cutter import BallCutter
+from conformill.errors import MeshError, PlanningError
+from conformill.mesh import synthetic as syn
+
+R_BALL = 4.0
+
+
+def _tilted_plane(a=0.3, b=-0.2, c=5.0, jitter=0.3):
+    m = syn.plane(size=100.0, spacing=4.0, jitter=jitter, seed=3)
+    V = m.V.copy()
+    V[:, 2] = a * V[:, 0] + b * V[:, 1] + c
+    return V, m.F
+
+
+# ----------------------------------------------------------------------------- drop: planes
+
+
+class TestDropPlane:
+    def test_horizontal_plane_is_z_plus_r(self):
+        m = syn.plane(size=100.0, spacing=5.0, jitter=0.3, z=3.0)
+        cut = BallCutter(m.V, m.F, R_BALL)
+        xy = np.random.default_rng(0).uniform(-44, 44, (2000, 2))
+        np.testing.assert_allclose(cut.drop(xy), 3.0 + R_BALL, atol=1e-12, rtol=0)
+
+    def test_tilted_plane_closed_form(self):
+        # ball on the plane a x + b y + c: centre height plane(p) + r sqrt(1 + a^2 + b^2)
+        a, b, c = 0.3, -0.2, 5.0
+        V, F = _tilted_plane(a, b, c)
+        cut = BallCutter(V, F, R_BALL)
+        xy = np.random.default_rng(1).uniform(-40, 40, (2000, 2))
+        exact = a * xy[:, 0] + b * xy[:, 1] + c + R_BALL * np.sqrt(1 + a * a + b * b)
+        np.testing.assert_allclose(cut.drop(xy), exact, atol=1e-10, rtol=0)
+
+    def test_far_points_touch_nothing(self):
+        m = syn.plane(size=20.0, spacing=5.0)
+        cut = BallCutter(m.V, m.F, R_BALL)
+        z = cut.drop(np.array([[100.0, 0.0], [0.0, -14.01], [0.0, -13.99]]))
+        assert z[0] == -np.inf and z[1] == -np.inf
+        # 3.99 mm from the edge y = -10: the edge cylinder, height sqrt(r^2 - d^2)
+        assert z[2] == pytest.approx(np.sqrt(R_BALL**2 - 3.99**2), abs=1e-12)
+
+    def test_empty_query(self):
+        m = syn.plane(size=20.0, spacing=5.0)
+        assert BallCutter(m.V, m.F, R_BALL).drop(np.empty((0, 2))).shape == (0,)
+
+
+# ----------------------------------------------------------------------------- drop: sphere
+
+
+def test_sphere_cap_to_faceting_error():
+    # ball of radius r above a sphere of radius R: centre at sqrt((R + r)^2 - d^2)
+    R = 50.0
+    m = syn.sphere_cap(R=R, radius_xy=30.0, spacing=0.5, jitter=0.2, seed=2)
+    cut = BallCutter(m.V, m.F, R_BALL)
+    rng = np.random.default_rng(4)
+    xy = rng.uniform(-1, 1, (3000, 2)) * 18.0
+    exact = np.sqrt((R + R_BALL) ** 2 - (xy**2).sum(1))
+    err = cut.drop(xy) - exact
+    # the mesh is inscribed in the sphere: never above; below by at most the sagitta of
+    # a facet, (longest edge)^2 / (8 R) * 2 for the facet's centre
+    E = np.linalg.norm(m.V[m.F[:, [1, 2, 0]]] - m.V[m.F], axis=2).max()
+    assert err.max() <= 1e-9
+    assert err.min() >= -(E**2) / (4 * R)
+    assert err.min() < -1e-6  # faceting is actually seen (the test is not vacuous)
+
+
+# ----------------------------------------------------------------------------- drop: one triangle
+
+
+class TestSingleTriangle:
+    """Triangle A(0,0,0) B(10,0,2) C(0,10,1): plane z = 0.2 x + 0.1 y."""
+
+    V = np.array([[0.0, 0.0, 0.0], [10.0, 0.0, 2.0], [0.0, 10.0, 1.0]])
+    F = np.array([[0, 1, 2]])
+
+    @pytest.fixture
+    def cut(self):
+        return BallCutter(self.V, self.F, R_BALL)
+
+    def test_facet(self, cut):
+        p = np.array([[3.0, 3.0]])
+        exact = 0.2 * 3 + 0.1 * 3 + R_BALL * np.sqrt(1 + 0.04 + 0.01)
+        assert cut.drop(p)[0] == pytest.approx(exact, abs=1e-12)
+
+    def test_vertex(self, cut):
+        # beyond vertex A: edges' contacts fall outside the segments, facet contact outside
+        assert cut.drop(np.array([[-2.0, -2.0]]))[0] == pytest.approx(np.sqrt(16 - 8), abs=1e-12)
+
+    def test_edge(self, cut):
+        # beside edge AB (y = 0, slope m = 0.2): z_a + m u0 + s sqrt(1 + m^2), s = sqrt(r^2 - d^2)
+        s = np.sqrt(R_BALL**2 - 2.0**2)
+        exact = 0.2 * 5.0 + s * np.sqrt(1 + 0.04)
+        assert cut.drop(np.array([[5.0, -2.0]]))[0] == pytest.approx(exact, abs=1e-12)
+
+    def test_orientation_does_not_matter(self):
+        a = BallCutter(self.V, self.F, R_BALL)
+        b = BallCutter(self.V, self.F[:, ::-1], R_BALL)
+        xy = np.random.default_rng(0).uniform(-5, 15, (500, 2))
+        za, zb = a.drop(xy), b.drop(xy)
+        assert np.array_equal(np.isfinite(za), np.isfinite(zb))
+        np.testing.assert_allclose(za, zb, atol=1e-12, rtol=0)  # edges run the other way
+
+    def test_vertical_triangle_edges_and_vertices_only(self):
+        # a wall in the plane y = 0 with top edge from (0,0,5) to (10,0,5)
+        V = np.array([[0.0, 0.0, 0.0], [10.0, 0.0, 5.0], [0.0, 0.0, 5.0]])
+        cut = BallCutter(V, np.array([[0, 1, 2]]), R_BALL)
+        z = cut.drop(np.array([[5.0, 1.0], [5.0, 0.0]]))
+        np.testing.assert_allclose(z, [5.0 + np.sqrt(R_BALL**2 - 1.0), 5.0 + R_BALL], atol=1e-12)
+
+
+# ----------------------------------------------------------------------------- drop: oracles
+
+
+def _brute_force(V, F, r, xy, n=60):
+    """Max over dense samples q of each triangle of q_z + sqrt(r^2 - |q - p|^2)."""
+    i, j = np.meshgrid(np.arange(n + 1), np.arange(n + 1), indexing="ij")
+    keep = i + j <= n
+    w1, w2 = i[keep] / n, j[keep] / n
+    w0 = 1 - w1 - w2
+    P = V[F]
+    Q = (w0[None, :, None] * P[:, None, 0] + w1[None, :, None] * P[:, None, 1]
+         + w2[None, :, None] * P[:, None, 2]).reshape(-1, 3)
+    out = np.full(len(xy), -np.inf)
+    for k, p in enumerate(xy):
+        d2 = ((Q[:, :2] - p) ** 2).sum(1)
+        ok = d2 <= r * r
+        if ok.any():
+            out[k] = (Q[ok, 2] + np.sqrt(r * r - d2[ok])).max()
+    return out
+
+
+def test_against_dense_sampling_oracle():
+    m = syn.freeform_patch(spacing=6.0, jitter=0.3)
+    cut = BallCutter(m.V, m.F, 3.0)
+    xy = np.random.default_rng(5).uniform([-50, -30], [50, 30], (40, 2))
+    z = cut.drop(xy)
+    zb = _brute_force(m.V, m.F, 3.0, xy)
+    assert np.array_equal(np.isfinite(z), np.isfinite(zb))
+    f = np.isfinite(z)
+    d = z[f] - zb[f]
+    assert d.min() >= -1e-9  # exact drop is the supremum over the mesh: never below samples
+    assert d.max() < 2e-2  # and close to it (sampling at 0.1 mm)
+
+
+def _step_with_wall():
+    """Two horizontal squares joined by a vertical wall (XY-degenerate triangles)."""
+    V = np.array([[0.0, 0, 0], [10, 0, 0], [10, 10, 0], [0, 10, 0],
+                  [10, 0, 5], [10, 10, 5], [20, 0, 5], [20, 10, 5]])
+    F = np.array([[0, 1, 2], [0, 2, 3], [1, 4, 5], [1, 5, 2], [4, 6, 7], [4, 7, 5]])
+    return V, F
+
+
+def test_vertical_wall_against_dense_sampling():
+    V, F = _step_with_wall()
+    xy = np.random.default_rng(9).uniform([-3, -3], [23, 13], (60, 2))
+    z = BallCutter(V, F, 2.0).drop(xy)
+    zb = _brute_force(V, F, 2.0, xy, n=200)
+    assert np.array_equal(np.isfinite(z), np.isfinite(zb))
+    f = np.isfinite(z)
+    assert (z[f] - zb[f]).min() >= -1e-9 and (z[f] - zb[f]).max() < 1e-2
+
+
+@pytest.mark.parametrize("case", ["freeform", "steep_cylinder", "wall"])
+def test_against_opencamlib(case):
+    ocl_mod = pytest.importorskip("opencamlib")
+    ocl = ocl_mod.ocl
+    r = 3.0
+    rng = np.random.default_rng(0)
+    if case == "freeform":
+        m = syn.freeform_patch(spacing=2.0, jitter=0.3)
+        V, F = m.V, m.F
+        xy = rng.uniform([-70, -50], [70, 50], (3000, 2))
+    elif case == "steep_cylinder":  # facets down to n_z ~ 0.02
+        m = syn.cylinder_patch(R=20.0, length=40.0, half_angle=1.55, spacing=1.5, jitter=0.2)
+        V, F = m.V, m.F
+        xy = rng.uniform([-25, -25], [25, 25], (3000, 2))
+    else:
+        V, F = _step_with_wall()
+        xy = rng.uniform([-4, -4], [24, 14], (3000, 2))
+    surf = ocl.STLSurf()
+    for t in V[F].tolist():
+        surf.addTriangle(ocl.Triangle(ocl.Point(*t[0]), ocl.Point(*t[1]), ocl.Point(*t[2])))
+    cutter = ocl.BallCutter(2 * r, 50.0)  # keep a reference: ocl does not own it
+    bdc = ocl.BatchDropCutter()
+    bdc.setSTL(surf)
+    bdc.setCutter(cutter)
+    zmin = -1000.0
+    for x, y in xy.tolist():
+        bdc.appendPoint(ocl.CLPoint(x, y, zmin))
+    bdc.run()
+    tip = np.array([p.z for p in bdc.getCLPoints()])
+    ref = np.where(tip > zmin, tip + r, -np.inf)  # ocl gives the tool tip
+    z = BallCutter(V, F, r).drop(xy)
+    assert np.array_equal(np.isfinite(z), np.isfinite(ref))
+    f = np.isfinite(z)
+    assert f.sum() > 1500
+    np.testing.assert_allclose(z[f], ref[f], atol=1e-9, rtol=0)
+
+
+def test_result_does_not_depend_on_order_or_grid():
+    m = syn.freeform_patch(spacing=2.0, jitter=0.3)
+    xy = np.random.default_rng(7).uniform([-65, -45], [65, 45], (5000, 2))
+    a = BallCutter(m.V, m.F, 3.0)
+    z = a.drop(xy)
+    perm = np.random.default_rng(8).permutation(len(xy))
+    np.testing.assert_array_equal(a.drop(xy[perm]), z[perm])
+    np.testing.assert_array_equal(BallCutter(m.V, m.F, 3.0, cell=4.0).drop(xy), z)
+
+
+# ----------------------------------------------------------------------------- CC -> CL
+
+
+class TestClFromCC:
+    def test_plane_centre_is_cc_plus_rn(self):
+        a, b, c = 0.3, -0.2, 5.0
+        V, F = _tilted_plane(a, b, c)
+        cut = BallCutter(V, F, R_BALL)
+        xy = np.random.default_rng(2).uniform(-35, 35, (500, 2))
+        cc = np.column_stack([xy, a * xy[:, 0] + b * xy[:, 1] + c])
+        n = np.tile(np.array([-a, -b, 1.0]) / np.sqrt(1 + a * a + b * b), (len(xy), 1))
+        centre, lift = cut.cl_from_cc(cc, n)
+        np.testing.assert_allclose(centre, cc + R_BALL * n, atol=1e-10, rtol=0)
+        np.testing.assert_allclose(lift, 0.0, atol=1e-10)
+        np.testing.assert_allclose(np.linalg.norm(centre - cc, axis=1), R_BALL, atol=1e-10)
+
+    def test_sphere_lift_is_faceting_error(self):
+        R = 50.0
+        m = syn.sphere_cap(R=R, radius_xy=30.0, spacing=0.5)
+        cut = BallCutter(m.V, m.F, R_BALL)
+        rng = np.random.default_rng(3)
+        xy = rng.uniform(-14, 14, (300, 2))
+        cc = np.column_stack([xy, np.sqrt(R * R - (xy**2).sum(1))])  # on the analytic sphere
+        n = cc / R  # its true normals
+        centre, lift = cut.cl_from_cc(cc, n)
+        assert lift.min() > -1e-2 and lift.max() < 1e-2
+        np.testing.assert_allclose(np.linalg.norm(centre, axis=1), R + R_BALL, atol=1e-2)
+
+    def test_lift_is_never_negative_and_reports_bad_normals(self):
+        m = syn.freeform_patch(spacing=2.0, jitter=0.3)
+        cut = BallCutter(m.V, m.F, 3.0)
+        rng = np.random.default_rng(4)
+        f = rng.integers(0, len(m.F), 400)
+        w = rng.dirichlet([1, 1, 1], 400)
+        cc = np.einsum("ij,ijk->ik", w, m.V[m.F[f]])
+        n = rng.normal(size=(400, 3))
+        n[:, 2] = np.abs(n[:, 2])
+        centre, lift = cut.cl_from_cc(cc, n)
+        assert lift.min() >= -1e-9
+        # the ball never intersects the mesh: centre on the drop surface
+        np.testing.assert_array_equal(centre[:, 2], cut.drop(centre[:, :2]))
+        # a normal pointing down gives a large lift
+        _, lift_down = cut.cl_from_cc(cc[:1], -np.array([[0.0, 0.0, 1.0]]))
+        assert lift_down[0] > 5.0
+
+    def test_bad_inputs(self):
+        m = syn.plane(size=20.0, spacing=5.0)
+        cut = BallCutter(m.V, m.F, R_BALL)
+        cc = np.zeros((2, 3))
+        n = np.tile([0.0, 0.0, 1.0], (2, 1))
+        with pytest.raises(PlanningError, match="same shape"):
+            cut.cl_from_cc(cc, n[:1])
+        with pytest.raises(PlanningError, match="zero length.*point 1"):
+            cut.cl_from_cc(cc, np.array([[0, 0, 1.0], [0, 0, 0]]))
+        with pytest.raises(PlanningError, match="not within the ball's reach.*point 0"):
+            cut.cl_from_cc(np.array([[100.0, 0, 0]]), n[:1])
+        with pytest.raises(PlanningError, match="non-finite rows.*row 1"):
+            cut.cl_from_cc(np.array([[0, 0, 0], [np.nan, 0, 0]]), n)
+
+
+# ----------------------------------------------------------------------------- refine
+
+
+def _max_dip(cut, P, spacing=0.01):
+    """Largest ``drop - chord`` over dense samples of every segment of ``P``."""
+    worst = -np.inf
+    for a, b in zip(P[:-1], P[1:]):
+        k = max(2, int(np.ceil(np.hypot(*(b[:2] - a[:2])) / spacing)) + 1)
+        t = np.linspace(0, 1, k)[:, None]
+        S = a + t * (b - a)
+        d = cut.drop(S[:, :2]) - S[:, 2]
+        worst = max(worst, np.max(d[np.isfinite(d)], initial=-np.inf))
+    return worst
+
+
+def _is_subsequence(P, Q):
+    """Every row of P appears in Q, in order."""
+    j = 0
+    for q in Q:
+        if j < len(P) and np.array_equal(q, P[j]):
+            j += 1
+    return j == len(P)
+
+
+class TestRefine:
+    @pytest.mark.parametrize("tol", [0.05, 0.005])
+    def test_dome_chords(self, tol):
+        m = syn.sphere_cap(R=30.0, radius_xy=25.0, spacing=1.0)
+        cut = BallCutter(m.V, m.F, R_BALL)
+        x = np.linspace(-18, 18, 7)  # 6 mm steps over a dome: chords dip well below
+        xy = np.column_stack([x, 0.3 * x])
+        P = np.column_stack([xy, cut.drop(xy)])
+        assert _max_dip(cut, P) > 4 * tol  # the input does gouge
+        Q = cut.refine(P, tol)
+        assert len(Q) > len(P)
+        assert _is_subsequence(P, Q)
+        assert _max_dip(cut, Q) <= tol
+        # inserted points lie on the drop surface
+        np.testing.assert_array_equal(Q[:, 2] >= cut.drop(Q[:, :2]) - 1e-12, True)
+
+    def test_ridge_crease(self):
+        # a roof: two planes meeting at the ridge x = 0; the drop surface rounds it with r
+        P2, F = syn.polygon_disk(syn.regular_polygon(40, 40.0), 3.0)
+        V = np.column_stack([P2, 10.0 - 0.6 * np.abs(P2[:, 0])])
+        cut = BallCutter(V, F, R_BALL)
+        xy = np.array([[-12.0, 1.0], [12.0, -1.0]])
+        P = np.column_stack([xy, cut.drop(xy)])
+        Q = cut.refine(P, 0.01)
+        assert _is_subsequence(P, Q)
+        assert _max_dip(cut, Q) <= 0.01
+
+    def test_freeform_zigzag(self):
+        m = syn.freeform_patch(spacing=2.0, jitter=0.3)
+        cut = BallCutter(m.V, m.F, 3.0)
+        x = np.arange(-50, 51, 5.0)
+        xy = np.vstack([np.column_stack([x if k % 2 == 0 else x[::-1], np.full_like(x, y)])
+                        for k, y in enumerate(np.arange(-30, 31, 15.0))])
+        z = cut.drop(xy)
+        P = np.column_stack([xy, z])[np.isfinite(z)]  # not in the notch
+        assert _max_dip(cut, P, spacing=0.02) > 0.05
+        Q = cut.refine(P, 0.01)
+        assert _is_subsequence(P, Q)
+        assert _max_dip(cut, Q, spacing=0.02) <= 0.01
+
+    def test_flat_needs_nothing_and_short_inputs(self):
+        m = syn.plane(size=50.0, spacing=5.0, jitter=0.2, z=1.0)
+        cut = BallCutter(m.V, m.F, R_BALL)
+        P = np.array([[-20.0, -20, 5], [20, 20, 5], [20, -20, 5]])
+        np.testing.assert_array_equal(cut.refine(P, 0.01), P)
+        np.testing.assert_array_equal(cut.refine(P[:1], 0.01), P[:1])
+
+    def test_bad_tolerance(self):
+        m = syn.plane(size=20.0, spacing=5.0)
+        cut = BallCutter(m.V, m.F, R_BALL)
+        with pytest.raises(PlanningError, match="tolerance must be positive"):
+            cut.refine(np.zeros((2, 3)), 0.0)
+        with pytest.raises(PlanningError, match="step must be positive"):
+            cut.refine(np.zeros((2, 3)), 0.01, step=-1)
+
+
+def test_tip_is_centre_minus_r():
+    m = syn.plane(size=20.0, spacing=5.0)
+    cut = BallCutter(m.V, m.F, 2.5)
+    C = np.array([[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]])
+    np.testing.assert_array_equal(cut.tip(C), C - [0, 0, 2.5])
+    np.testing.assert_array_equal(C, [[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]])  # not mutated
+
+
+# ----------------------------------------------------------------------------- bad inputs
+
+
+class TestBadInputs:
+    V = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]])
+    F = np.array([[0, 1, 2]])
+
+    def test_vertices_shape(self):
+        with pytest.raises(MeshError, match=r"vertices must be \(n, 3\)"):
+            BallCutter(self.V[:, :2], self.F, 1.0)
+
+    def test_faces_shape_and_empty(self):
+        with pytest.raises(MeshError, match=r"faces must be \(m, 3\)"):
+            BallCutter(self.V, np.zeros((0, 3), dtype=np.int64), 1.0)
+
+    def test_faces_not_integer(self):
+        with pytest.raises(MeshError, match="integers"):
+            BallCutter(self.V, self.F.astype(float), 1.0)
+
+    def test_index_out_of_range(self):
+        with pytest.raises(MeshError, match=r"face 1 .*out of range"):
+            BallCutter(self.V, np.array([[0, 1, 2], [0, 1, 3]]), 1.0)
+
+    def test_nonfinite_vertex(self):
+        V = self.V.copy()
+        V[2, 1] = np.nan
+        with pytest.raises(MeshError, match="vertex 2"):
+            BallCutter(V, self.F, 1.0)
+
+    @pytest.mark.parametrize("r", [0.0, -1.0, np.inf, np.nan])
+    def test_radius(self, r):
+        with pytest.raises(PlanningError, match="radius must be positive"):
+            BallCutter(self.V, self.F, r)
+
+    def test_query_shape(self):
+        cut = BallCutter(self.V, self.F, 1.0)
+        with pytest.raises(PlanningError, match=r"xy must be \(k, 2\)"):
+            cut.drop(np.zeros((3, 3)))
+        with pytest.raises(PlanningError, match="non-finite"):
+            cut.drop(np.array([[0.0, np.inf]]))

@@ -1,0 +1,213 @@
+"""G-code writer: numbers round-trip, header comments, rapids only at safe Z, bytes
+deterministic, atomic output, statistics, every bad input."""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+import pytest
+
+import conformill
+from conformill.errors import OutputError, PlanningError
+from conformill.output.gcode import format_gcode, write_gcode
+from conformill.types import ToolPath
+
+WORD = re.compile(r"([A-Z])(-?\d+(?:\.\d+)?)")
+
+
+def _toolpath(n_passes=4, k=30, safe_z=12.0, seed=0):
+    rng = np.random.default_rng(seed)
+    passes = []
+    for i in range(n_passes):
+        x = np.linspace(-40.0, 40.0, k)
+        if i % 2:
+            x = x[::-1]
+        z = -2.0 + np.sin(x / 7.0) + rng.uniform(-0.3, 0.3, k)
+        passes.append(np.column_stack([x, np.full(k, -20.0 + 3.0 * i + rng.uniform(0, 1e-3)), z]))
+    return ToolPath(passes=passes, safe_z=safe_z)
+
+
+def _parse(text):
+    """Blocks as (code words dict) with comments stripped; modal positions tracked.
+
+    Returns a list of (motion, position-after, words) for every motion block.
+    """
+    pos = {"X": None, "Y": None, "Z": None}
+    motion = None
+    moves = []
+    for line in text.splitlines():
+        body = re.sub(r"\([^)]*\)", "", line).strip()
+        if not body:
+            continue
+        words = WORD.findall(body)
+        g = [float(v) for c, v in words if c == "G"]
+        if 0.0 in g:
+            motion = "G0"
+        if 1.0 in g:
+            motion = "G1"
+        axes = {c: float(v) for c, v in words if c in "XYZ"}
+        if axes:
+            before = dict(pos)
+            pos.update(axes)
+            moves.append((motion, before, dict(pos), body))
+    return moves
+
+
+class TestProgram:
+    def test_round_trip_of_cut_points(self):
+        tp = _toolpath()
+        moves = _parse(format_gcode(tp, feed=1500.0, plunge_feed=400.0))
+        feeds = [m for m in moves if m[0] == "G1"]
+        # per pass: the plunge (to point 0) then one move per further point
+        pts = [np.array([m[2]["X"], m[2]["Y"], m[2]["Z"]]) for m in feeds]
+        expect = np.vstack(tp.passes)
+        assert len(pts) == len(expect)
+        np.testing.assert_allclose(np.array(pts), expect, atol=0.5e-4 + 1e-12, rtol=0)
+
+    def test_structure_and_modal_words(self):
+        text = format_gcode(_toolpath(n_passes=2), feed=1500, plunge_feed=400, spindle=12000)
+        lines = text.splitlines()
+        body = [ln for ln in lines if not ln.startswith("(")]
+        assert body[:4] == ["G21 G90 G17 G94", "G40 G49 G80", "M3 S12000", "G0 Z12.0000"]
+        assert body[-3:] == ["G0 Z12.0000", "M5", "M30"]
+        assert "%" not in text
+        assert text.endswith("\n") and "\r" not in text
+        # F only when it changes: plunge then feed, in each pass
+        assert re.findall(r"F(\d+)", text) == ["400", "1500", "400", "1500"]
+        same = format_gcode(_toolpath(n_passes=2), feed=1500)
+        assert re.findall(r"F(\d+)", same) == ["1500"]
+        assert "M3 " not in same
+        for ln in body:  # every number has exactly 4 decimals
+            for c, v in WORD.findall(ln):
+                if c in "XYZ":
+                    assert re.fullmatch(r"-?\d+\.\d{4}", v), ln
+
+    def test_rapids_only_at_safe_z_or_vertical(self):
+        tp = _toolpath(n_passes=5)
+        for motion, before, after, body in _parse(format_gcode(tp, feed=1000)):
+            if motion != "G0":
+                continue
+            vertical = before["X"] == after["X"] and before["Y"] == after["Y"]
+            if vertical:
+                assert after["Z"] >= tp.safe_z, body  # retracts go up to safe Z
+            else:
+                assert before["Z"] >= tp.safe_z and after["Z"] >= tp.safe_z, body
+
+    def test_negative_zero_and_repeated_points(self):
+        P = np.array([[-1e-6, 0.0, -0.00004], [1.0, 0.0, -1.0], [1.0, 0.0, -1.0],
+                      [1.00001, 0.0, -1.0], [2.0, 0.0, -1.0]])
+        text = format_gcode(ToolPath(passes=[P], safe_z=5.0), feed=100)
+        assert "-0.0000" not in text
+        assert "G0 X0.0000 Y0.0000" in text
+        assert "G1 Z0.0000" in text
+        cuts = [ln for ln in text.splitlines() if ln.startswith("G1 X")]
+        # the repeated point and the one within 1e-4 mm are dropped; unchanged Y omitted
+        assert cuts == ["G1 X1.0000 Z-1.0000", "G1 X2.0000"]
+
+    def test_single_point_pass(self):
+        text = format_gcode(ToolPath(passes=[np.array([[1.0, 2.0, -3.0]])], safe_z=5.0), feed=100)
+        body = [ln for ln in text.splitlines() if not ln.startswith("(")]
+        assert body[-5:] == ["G0 X1.0000 Y2.0000", "G1 Z-3.0000 F100", "G0 Z5.0000", "M5", "M30"]
+
+    def test_deterministic_bytes(self, tmp_path):
+        tp = _toolpath()
+        a = format_gcode(tp, feed=1234.5, header={"b": 1, "a": 2.5})
+        b = format_gcode(_toolpath(), feed=1234.5, header={"b": 1, "a": 2.5})
+        assert a == b
+        write_gcode(tmp_path / "p.nc", tp, feed=1234.5, header={"b": 1, "a": 2.5})
+        assert (tmp_path / "p.nc").read_bytes() == a.encode("ascii")
+        assert "F1234.5" in a
+
+
+class TestHeader:
+    def test_every_parameter_and_version(self):
+        hdr = {"mesh": "face.ply", "tool_radius": 4.0, "scallop": 0.01, "pattern": "zigzag",
+               "passes": 12, "corners": (1, 2, 3, 4)}
+        text = format_gcode(_toolpath(), feed=1000, header=hdr)
+        comments = [ln for ln in text.splitlines() if ln.startswith("(")]
+        assert comments[0] == f"(conformill {conformill.__version__})"
+        assert comments[1:] == ["(param mesh: face.ply)", "(param tool_radius: 4.0)",
+                                "(param scallop: 0.01)", "(param pattern: zigzag)",
+                                "(param passes: 12)", "(param corners: [1, 2, 3, 4])"]
+
+    def test_odd_values_are_sanitised(self):
+        hdr = {"name (v2)": "Ærø façade (copy)\nsecond line\ttab", "debug, msg": "(MSG, hello)",
+               "long": "x" * 1000, "nan": float("nan"), "unicode µm": "→ ok"}
+        text = format_gcode(_toolpath(), feed=1000, header=hdr)
+        text.encode("ascii")  # pure ASCII
+        comments = [ln for ln in text.splitlines() if ln.startswith("(")]
+        assert len(comments) == 1 + len(hdr)
+        for c in comments:
+            assert re.fullmatch(r"\((conformill|param) [^()]*\)", c), c
+            assert len(c) < 256
+        assert "(param name [v2]: ?r? facade [copy] second line tab)" in comments
+        assert "(param debug, msg: [MSG, hello])" in comments
+        assert "(param nan: nan)" in comments
+        assert "(param unicode ?m: ? ok)" in comments or "(param unicode um: ? ok)" in comments
+
+
+class TestStats:
+    def test_lengths_and_time(self, tmp_path):
+        P1 = np.array([[0.0, 0.0, -1.0], [3.0, 4.0, -1.0], [3.0, 4.0, -3.0]])
+        P2 = np.array([[10.0, 4.0, -2.0], [10.0, 0.0, -2.0]])
+        tp = ToolPath(passes=[P1, P2], safe_z=5.0)
+        st = write_gcode(tmp_path / "s.nc", tp, feed=600.0, plunge_feed=200.0)
+        text = (tmp_path / "s.nc").read_text()
+        assert st["passes"] == 2 and st["cut_points"] == 5 and st["cut_moves"] == 3
+        assert st["feed_length_mm"] == pytest.approx(5.0 + 2.0 + 4.0)
+        assert st["plunge_length_mm"] == pytest.approx(6.0 + 7.0)
+        # retract 8 + rapid (3,4) -> (10,4) 7 + retract 7
+        assert st["rapid_length_mm"] == pytest.approx(8.0 + 7.0 + 7.0)
+        assert st["machining_time_min"] == pytest.approx(11.0 / 600.0 + 13.0 / 200.0)
+        assert st["n_lines"] == len(text.splitlines())
+        assert st["bytes"] == len(text.encode())
+
+
+class TestErrors:
+    def test_folder_missing(self, tmp_path):
+        target = tmp_path / "nope" / "p.nc"
+        with pytest.raises(OutputError, match="does not exist"):
+            write_gcode(target, _toolpath(), feed=1000)
+        assert not target.parent.exists()
+
+    def test_failed_write_leaves_nothing(self, tmp_path):
+        with pytest.raises(PlanningError):
+            write_gcode(tmp_path / "p.nc", ToolPath(passes=[], safe_z=1.0), feed=1000)
+        assert list(tmp_path.iterdir()) == []
+
+    def test_existing_file_kept_on_error(self, tmp_path):
+        target = tmp_path / "p.nc"
+        target.write_text("old\n")
+        with pytest.raises(PlanningError):
+            write_gcode(target, _toolpath(), feed=-1)
+        assert target.read_text() == "old\n"
+
+    @pytest.mark.parametrize("kw, msg", [
+        ({"feed": 0.0}, "feed must be positive"),
+        ({"feed": float("nan")}, "feed must be positive"),
+        ({"feed": "fast"}, "feed must be a number"),
+        ({"feed": 100, "plunge_feed": -5}, "plunge_feed must be positive"),
+        ({"feed": 100, "spindle": 0}, "spindle must be positive"),
+    ])
+    def test_bad_numbers(self, kw, msg):
+        with pytest.raises(PlanningError, match=msg):
+            format_gcode(_toolpath(), **kw)
+
+    def test_bad_passes(self):
+        with pytest.raises(PlanningError, match="no passes"):
+            format_gcode(ToolPath(passes=[], safe_z=5.0), feed=100)
+        with pytest.raises(PlanningError, match=r"pass 1 must be \(k, 3\)"):
+            format_gcode(ToolPath(passes=[np.zeros((2, 3)), np.zeros((2, 2))], safe_z=5.0), feed=100)
+        with pytest.raises(PlanningError, match=r"pass 0 must be \(k, 3\) with k >= 1"):
+            format_gcode(ToolPath(passes=[np.zeros((0, 3))], safe_z=5.0), feed=100)
+        P = np.zeros((3, 3))
+        P[2, 0] = np.nan
+        with pytest.raises(PlanningError, match="pass 0 point 2 is not finite"):
+            format_gcode(ToolPath(passes=[P], safe_z=5.0), feed=100)
+        P = np.zeros((3, 3))
+        P[1, 2] = 6.0
+        with pytest.raises(PlanningError, match=r"pass 0 point 1 is above the clearance height: z = 6\.0000"):
+            format_gcode(ToolPath(passes=[P], safe_z=5.0), feed=100)
+        with pytest.raises(PlanningError, match="safe_z must be finite"):
+            format_gcode(ToolPath(passes=[np.zeros((2, 3))], safe_z=float("inf")), feed=100)

@@ -1,0 +1,96 @@
+"""Whole `conformill param` process against libigl's harmonic map, same mesh, same run.
+
+Runs, each in a fresh subprocess (so peak RSS is per process, from ``os.wait4``):
+
+1. ``conformill param MESH --scale S -o OUT.obj`` (read, geodesic weights, circle boundary,
+   solve, quality, OBJ write);
+2. libigl: read the mesh, ``igl.boundary_loop`` + ``igl.map_vertices_to_circle`` +
+   ``igl.harmonic(V, F, bnd, bnd_uv, 1)`` (cotangent weights, circle boundary); the harmonic
+   call is timed inside the child as well as the whole child.
+
+Target: conformill's whole process <= igl's harmonic call alone; peak RSS < 4 GB.
+
+    python benchmarks/bench_param.py [MESH] [--scale 1400] [--repeat 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+DEFAULT = Path("/work/shared/meshes/large_igea_face_subdiv1.ply")
+
+IGL_CHILD = r"""
+import sys, time
+import numpy as np, trimesh, igl
+m = trimesh.load(sys.argv[1], process=False)
+V = np.ascontiguousarray(m.vertices, dtype=np.float64) * float(sys.argv[2])
+F = np.ascontiguousarray(m.faces, dtype=np.int64)
+t0 = time.perf_counter()
+bnd = igl.boundary_loop(F)
+bnd_uv = igl.map_vertices_to_circle(np.asfortranarray(V), bnd.astype(np.int32))
+uv = igl.harmonic(V, F, bnd.astype(np.int64), np.ascontiguousarray(bnd_uv), 1)
+print(f"HARMONIC {time.perf_counter() - t0:.4f} {uv.shape[0]}")
+"""
+
+
+def run_child(cmd):
+    """Wall time (s), peak RSS (MB) and stdout of one subprocess."""
+    t0 = time.perf_counter()
+    p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    out_r, err_r = p.stdout, p.stderr
+    _, status, ru = os.wait4(p.pid, 0)
+    wall = time.perf_counter() - t0
+    out, err = out_r.read(), err_r.read()
+    p.returncode = os.waitstatus_to_exitcode(status)
+    if p.returncode != 0:
+        raise SystemExit(f"{' '.join(cmd)} failed ({p.returncode}):\n{err}")
+    return wall, ru.ru_maxrss / 1024.0, out
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("mesh", nargs="?", default=str(DEFAULT))
+    ap.add_argument("--scale", type=float, default=1400.0)
+    ap.add_argument("--repeat", type=int, default=3)
+    args = ap.parse_args(argv)
+
+    with tempfile.TemporaryDirectory() as tmp:
+        obj = str(Path(tmp) / "out.obj")
+        rep = str(Path(tmp) / "out.json")
+        cm_cmd = [sys.executable, "-m", "conformill", "param", args.mesh, "--scale", str(args.scale),
+                  "-o", obj, "--report", rep]
+        igl_cmd = [sys.executable, "-c", IGL_CHILD, args.mesh, str(args.scale)]
+        run_child(cm_cmd)  # warm numba's cache and the OS file cache
+        cm, igl_wall, igl_h = [], [], []
+        for _ in range(args.repeat):  # interleaved, so background load hits both alike
+            w, rss_cm, out = run_child(cm_cmd)
+            cm.append((w, rss_cm))
+            w, rss_igl, out_igl = run_child(igl_cmd)
+            h = float(out_igl.split("HARMONIC")[1].split()[0])
+            igl_wall.append((w, rss_igl))
+            igl_h.append(h)
+        import json
+
+        stages = json.loads(Path(rep).read_text())["timings_s"]
+    best_cm = min(cm)
+    best_igl = min(igl_wall)
+    best_h = min(igl_h)
+    print(f"mesh {Path(args.mesh).name} (scale {args.scale}), best of {args.repeat}")
+    print(f"conformill param (whole process)   {best_cm[0]:7.2f} s  peak RSS {max(r for _, r in cm):7.0f} MB"
+          f"   all: {', '.join(f'{w:.2f}' for w, _ in cm)}")
+    print("  stages of the last run: " + ", ".join(f"{k} {v:.2f}" for k, v in stages.items()))
+    print(f"igl.harmonic call alone            {best_h:7.2f} s"
+          f"   all: {', '.join(f'{h:.2f}' for h in igl_h)}")
+    print(f"igl subprocess (read + harmonic)   {best_igl[0]:7.2f} s  peak RSS {max(r for _, r in igl_wall):7.0f} MB")
+    print(f"ratio conformill process / igl harmonic alone: {best_cm[0] / best_h:.2f}"
+          f"  (/ igl process: {best_cm[0] / best_igl[0]:.2f})")
+
+
+if __name__ == "__main__":
+    main()

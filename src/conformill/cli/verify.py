@@ -1,11 +1,134 @@
-"""`conformill verify` (being written)."""
+"""``conformill verify MESH PROGRAM.nc --tool-radius R``: simulate a program on the part.
+
+Prints a table of remaining material (scallop), gouge, uncut area and rapid clearance;
+optionally writes a JSON report and a PNG heat map. Exit 0 when the limits given are met
+(or none is given), 1 when a limit is exceeded (scallop p99.9 > H or any uncut area with
+``--scallop``; gouge max > G with ``--gouge``), 2 on bad input.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
 
 from conformill.errors import ConformillError
 
 
-def add_arguments(parser):
-    pass
+def add_arguments(parser) -> None:
+    parser.add_argument("mesh", help="part surface (STL, OBJ, PLY, OFF), faces towards the tool (+Z)")
+    parser.add_argument("program", help="3-axis G-code program (tool-tip positions)")
+    parser.add_argument("--tool-radius", "-r", type=float, required=True, metavar="R", help="ball radius, mm")
+    parser.add_argument("--scallop", type=float, default=None, metavar="H",
+                        help="scallop limit, mm: fail when p99.9 > H or any area is uncut")
+    parser.add_argument("--gouge", type=float, default=None, metavar="G", help="gouge limit, mm: fail when deeper")
+    parser.add_argument("--samples", type=int, default=200_000, metavar="N", help="surface samples (default 200000)")
+    parser.add_argument("--seed", type=int, default=0, help="random seed of the samples (default 0)")
+    parser.add_argument("--scale", type=float, default=1.0, metavar="S",
+                        help="factor applied to the mesh coordinates (e.g. 1000 for metres)")
+    parser.add_argument("--normals", choices=("vertex", "face"), default="vertex",
+                        help="sample normals: interpolated vertex normals (default) or face normals")
+    parser.add_argument("--chord-tol", type=float, default=0.001, metavar="E",
+                        help="chord tolerance for linearising arcs, mm (default 0.001)")
+    parser.add_argument("--report", default=None, metavar="OUT.json", help="write a JSON report")
+    parser.add_argument("--plot", default=None, metavar="OUT.png", help="write a PNG heat map")
+
+
+def _positive(name, v, allow_zero=False):
+    if v is None:
+        return
+    if not math.isfinite(v) or v < 0 or (v == 0 and not allow_zero):
+        raise ConformillError(f"{name} must be {'>= 0' if allow_zero else '> 0'}, got {v!r}")
+
+
+def _fmt(x, unit=" mm"):
+    if x is None:
+        return "-"
+    if isinstance(x, float) and not math.isfinite(x):
+        return "inf" if x > 0 else "nan"
+    return f"{x:.4g}{unit}"
+
+
+def table(summary: dict) -> str:
+    """The summary as a plain-text table (interior samples and all samples)."""
+    i, a = summary["interior"], summary["all"]
+    rows = [
+        ("samples", f"{i['samples']}", f"{a['samples']}"),
+        ("scallop p50", _fmt(i["scallop"]["p50"]), _fmt(a["scallop"]["p50"])),
+        ("scallop p99", _fmt(i["scallop"]["p99"]), _fmt(a["scallop"]["p99"])),
+        ("scallop p99.9", _fmt(i["scallop"]["p999"]), _fmt(a["scallop"]["p999"])),
+        ("scallop max", _fmt(i["scallop"]["max"]), _fmt(a["scallop"]["max"])),
+    ]
+    if "above_scallop_fraction" in i:
+        rows.append(("area above H", f"{100 * i['above_scallop_fraction']:.4g} %",
+                     f"{100 * a['above_scallop_fraction']:.4g} %"))
+    rows += [
+        ("uncut area", f"{100 * i['uncut_fraction']:.4g} %", f"{100 * a['uncut_fraction']:.4g} %"),
+        ("gouge max", _fmt(i["gouge_max"]), _fmt(a["gouge_max"])),
+        ("gouged area (>1 um)", f"{100 * i['gouged_fraction']:.4g} %", f"{100 * a['gouged_fraction']:.4g} %"),
+    ]
+    w0 = max(len(r[0]) for r in rows) + 2
+    out = [f"{'':<{w0}}{'interior (> r from boundary)':>30}{'all samples':>16}"]
+    out += [f"{r[0]:<{w0}}{r[1]:>30}{r[2]:>16}" for r in rows]
+    g = summary
+    if g["gouge_where"] is not None:
+        x, y, z = g["gouge_where"]
+        out.append(f"deepest interior gouge at ({x:.3f}, {y:.3f}, {z:.3f}) by the move on line {g['gouge_line']}")
+    cl = g["rapid_min_clearance"]
+    rc = f"{_fmt(cl)}" + (f" (line {g['rapid_min_line']})" if g["rapid_min_line"] is not None else "")
+    out.append(f"rapid clearance min {rc} over {g['n_rapids']} rapids; "
+               f"vertical retracts ({g['n_retracts']}): min {_fmt(g['retract_min_clearance'])}")
+    out.append(f"feed moves {g['feed_moves']}, feed length {g['feed_length_mm']:.1f} mm, tool radius {g['tool_radius']:g} mm")
+    if g["thresholds"]["scallop"] is not None or g["thresholds"]["gouge"] is not None:
+        out.append("PASS" if g["pass"] else "FAIL: " + "; ".join(g["failures"]))
+    return "\n".join(out)
 
 
 def run(args) -> int:
-    raise ConformillError("verify is not implemented yet")
+    from conformill.output.atomic import check_writable
+
+    _positive("--tool-radius", args.tool_radius)
+    _positive("--scallop", args.scallop, allow_zero=True)
+    _positive("--gouge", args.gouge, allow_zero=True)
+    _positive("--scale", args.scale)
+    _positive("--chord-tol", args.chord_tol)
+    if args.samples < 1:
+        raise ConformillError(f"--samples must be >= 1, got {args.samples}")
+    check_writable(args.report, args.plot)
+
+    from conformill.mesh.io import read_mesh
+    from conformill.verify.gcode import read_gcode
+    from conformill.verify.simulate import verify
+
+    t0 = time.perf_counter()
+    mesh = read_mesh(args.mesh, scale=args.scale, validate=False)
+    program = read_gcode(args.program if args.program != "-" else sys.stdin.read(), chord_tol=args.chord_tol)
+    bar = None
+    quiet = getattr(args, "quiet", False)
+    if not quiet and sys.stderr.isatty():
+        from tqdm import tqdm
+
+        bar = tqdm(total=args.samples, desc="simulating", unit="samples", unit_scale=True, leave=False,
+                   file=sys.stderr)
+    try:
+        res = verify(mesh, program, args.tool_radius, n_samples=args.samples, seed=args.seed,
+                     scallop=args.scallop, gouge=args.gouge, normals=args.normals,
+                     progress=bar.update if bar is not None else None)
+    finally:
+        if bar is not None:
+            bar.close()
+    seconds = time.perf_counter() - t0
+    summary = dict(res.summary)
+    summary.update(mesh=mesh.name, program=program.source, faces=mesh.n_faces, scale=args.scale, seconds=seconds)
+    if args.report:
+        from conformill.output.report import write_json
+
+        write_json(args.report, summary)
+    if args.plot:
+        from conformill.output.plot_verify import plot_verify
+
+        plot_verify(args.plot, res, title=f"{mesh.name} / {program.source}")
+    if not quiet:
+        print(table(summary))
+        print(f"({seconds:.1f} s)")
+    return 0 if summary["pass"] else 1

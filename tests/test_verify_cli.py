@@ -1,0 +1,74 @@
+"""`conformill verify` end to end: table, report, plot, exit codes."""
+
+import json
+
+import numpy as np
+import pytest
+
+from conformill.cli.main import main
+from conformill.mesh.synthetic import plane
+
+
+@pytest.fixture()
+def files(tmp_path):
+    import trimesh
+
+    m = plane(size=30.0, spacing=2.0)
+    mesh = tmp_path / "plane.ply"
+    trimesh.Trimesh(m.V, m.F, process=False).export(mesh)
+
+    def program(name, w=1.0, dip=None):
+        lines = ["(test raster)", "G21 G90", "G0 Z10"]
+        for i, x in enumerate(np.arange(-20, 20.001, w)):
+            z = -dip if dip is not None and i == 20 else 0.0
+            lines += [f"G0 X{x:.4f} Y-20 Z10", f"G1 Z{z:.4f} F500", "G1 Y20", "G0 Z10"]
+        p = tmp_path / name
+        p.write_text("\n".join(lines) + "\n")
+        return p
+
+    return mesh, program
+
+
+def test_pass_report_and_plot(files, tmp_path, capsys):
+    mesh, program = files
+    nc = program("good.nc")
+    rep, png = tmp_path / "r.json", tmp_path / "r.png"
+    rc = main(["verify", str(mesh), str(nc), "--tool-radius", "3", "--scallop", "0.05", "--gouge", "0.01",
+               "--samples", "20000", "--report", str(rep), "--plot", str(png)])
+    out = capsys.readouterr().out
+    assert rc == 0, out
+    assert "scallop p99.9" in out and "PASS" in out
+    r = json.loads(rep.read_text())
+    assert set(r["scallop"]) == {"p50", "p99", "p999", "max"}
+    assert r["scallop"]["max"] == pytest.approx(3 - np.sqrt(9 - 0.25), abs=2e-4)
+    assert r["pass"] is True and r["tool_radius"] == 3 and r["samples"] == 20000
+    assert r["thresholds"] == {"scallop": 0.05, "gouge": 0.01}
+    assert r["uncut_fraction"] == 0 and r["gouge_max"] < 1e-6
+    assert r["rapid_min_clearance"] > 0.5
+    assert png.stat().st_size > 10_000 and png.read_bytes()[:4] == b"\x89PNG"
+
+
+def test_exit_1_when_limits_exceeded(files, capsys):
+    mesh, program = files
+    nc = program("dip.nc", dip=0.05)
+    assert main(["verify", str(mesh), str(nc), "-r", "3", "--gouge", "0.01", "--samples", "20000", "-q"]) == 1
+    assert main(["verify", str(mesh), str(nc), "-r", "3", "--samples", "20000", "-q"]) == 0  # no limit given
+    coarse = program("coarse.nc", w=2.0)
+    assert main(["verify", str(mesh), str(coarse), "-r", "3", "--scallop", "0.05", "--samples", "20000"]) == 1
+    assert "FAIL: scallop p99.9" in capsys.readouterr().out
+
+
+def test_bad_input_exit_2(files, tmp_path, capsys):
+    mesh, program = files
+    nc = program("good.nc")
+    bad = tmp_path / "bad.nc"
+    bad.write_text("G0 X0 Y0 Z0\nG81 X1 Y1 Z-1 R2\n")
+    assert main(["verify", str(mesh), str(bad), "-r", "3"]) == 2
+    err = capsys.readouterr().err
+    assert "line 2" in err and "canned cycle" in err
+    assert main(["verify", str(mesh), str(nc), "-r", "0"]) == 2
+    assert "--tool-radius" in capsys.readouterr().err
+    assert main(["verify", str(tmp_path / "none.ply"), str(nc), "-r", "3"]) == 2
+    assert main(["verify", str(mesh), str(nc), "-r", "3", "--report", str(tmp_path / "no" / "r.json")]) == 2
+    assert "does not exist" in capsys.readouterr().err
+    assert main(["verify", str(mesh), str(nc), "-r", "3", "--samples", "0"]) == 2

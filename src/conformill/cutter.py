@@ -558,7 +558,9 @@ class BallCutter:
 
         A linear move between two safe ball centres can still cut into the part where the
         drop surface ``D`` (the highest safe centre height) bulges above the chord: convex
-        regions and creases. Each segment is sampled every ``step`` (XY length); where the
+        regions and creases. A move no longer than ``L_safe = 2 sqrt(r^2 - (r - tol/2)^2)``
+        cannot cut deeper than ``tol / 2`` (exact bound, see the code) and is accepted; a
+        longer one is sampled every ``step`` (3D length); where the
         chord lies below ``D`` by more than ``tol / 2`` at a sample, the worst sample
         ``(x, y, D)`` is inserted; repeated until no segment violates (at most ``max_iter``
         rounds; the last round inserts every violating sample).
@@ -600,7 +602,14 @@ class BallCutter:
         if len(P) < 2:
             return P.copy()
         thresh = 0.5 * tol
-        check = np.ones(len(P) - 1, dtype=bool)
+        # Exact bound (no sampling needed): if a and b are safe centres (every mesh point is
+        # at least r away), then for p = (1-t) a + t b and any mesh point c,
+        # |p-c|^2 = (1-t)|a-c|^2 + t|b-c|^2 - t(1-t)|a-b|^2 >= r^2 - |a-b|^2 / 4,
+        # so the ball at p cuts at most r - sqrt(r^2 - L^2/4) into the part. Moves shorter
+        # than L_safe (that depth = tol/2) are therefore never sampled.
+        r = self.radius
+        l_safe = 2.0 * math.sqrt(max(r * r - (r - min(thresh, r)) ** 2, 0.0))
+        check = np.linalg.norm(np.diff(P, axis=0), axis=1) > l_safe
         for it in range(max_iter):
             last = it == max_iter - 1
             seg = np.flatnonzero(check)
@@ -608,8 +617,9 @@ class BallCutter:
                 break
             a = P[seg]
             b = P[seg + 1]
-            lxy = np.hypot(b[:, 0] - a[:, 0], b[:, 1] - a[:, 1])
-            ns = np.ceil(lxy / step).astype(np.int64) - 1  # interior samples per segment
+            # sample by 3D length: a steep move has a short XY projection but can still dip
+            l3 = np.linalg.norm(b - a, axis=1)
+            ns = np.ceil(l3 / step).astype(np.int64) - 1  # interior samples per segment
             ns = np.maximum(ns, 0)
             tot = int(ns.sum())
             if tot == 0:
@@ -638,6 +648,9 @@ class BallCutter:
             newpts[:, 2] = D[ins_idx]
             after = seg[owner[ins_idx]]  # insert after point index `after`
             P, check = _insert(P, check, after, newpts, recheck=not last)
+            if not last:  # re-check only the touched moves that are still long enough to dip
+                idx = np.flatnonzero(check)
+                check[idx] = np.linalg.norm(P[idx + 1] - P[idx], axis=1) > l_safe
             if last:
                 log.warning("cutter.refine: stopped after %d rounds; %d points inserted in the last round",
                             max_iter, len(ins_idx))

@@ -29,7 +29,10 @@ def add_arguments(p) -> None:
     p.add_argument("--report", default=None, metavar="OUT.json")
     p.add_argument("--plot", default=None, metavar="OUT.png")
     p.add_argument("--html", default=None, metavar="OUT.html", help="self-contained 3D viewer")
-    p.add_argument("--verify", action="store_true", help="simulate the program and add the figures to the report")
+    p.add_argument("--verify", action="store_true",
+                   help="simulate the written program (conformill verify) and add its figures to the report")
+    p.add_argument("--verify-samples", type=int, default=400_000, metavar="N",
+                   help="surface samples for --verify (400000)")
 
 
 def _corners(text):
@@ -65,6 +68,8 @@ def run(args) -> int:
     from conformill.pipeline import check_job
 
     check_job(job)
+    if args.verify and args.verify_samples < 1:
+        raise PlanningError(f"--verify-samples must be >= 1, got {args.verify_samples}")
     t0 = time.perf_counter()
     t = time.perf_counter()
     mesh = read_mesh(args.mesh, scale=args.scale)
@@ -96,20 +101,26 @@ def run(args) -> int:
             plot_plan(args.plot, result)
             report["timings_s"]["plot"] = time.perf_counter() - t
         if args.verify:
-            from conformill.cli.verify import verify_program
-
             t = time.perf_counter()
-            report["verify"] = verify_program(result.mesh, args.output, job.tool_radius, scallop=job.scallop,
-                                              gouge=job.tolerance, quiet=args.quiet)
+            report["verify"] = _verify(result.mesh, args.output, job, args.verify_samples, args.quiet)
             report["timings_s"]["verify"] = time.perf_counter() - t
         if args.html:
-            from conformill.output.viewer import write_viewer
+            from conformill.cli.view import vertex_heat
+            from conformill.output.viewer import split_program, write_viewer
+            from conformill.verify.gcode import read_gcode
 
             t = time.perf_counter()
-            write_viewer(args.html, result.mesh.V, result.mesh.F, result.toolpath.passes,
-                         title=f"conformill {job.pattern}: {mesh.name}",
-                         info={"pattern": job.pattern, "tool radius": job.tool_radius, "scallop": job.scallop,
-                               "passes": stats["passes"], "feed length mm": round(stats["feed_length_mm"], 1)})
+            program = read_gcode(args.output)  # what the machine will run, rapids included
+            passes, rapids = split_program(program.points, program.motion, program.start)
+            info = {"pattern": job.pattern, "tool": f"ball R{job.tool_radius:g}", "scallop H": job.scallop,
+                    "tolerance E": job.tolerance}
+            heat = None
+            if args.verify:
+                heat, figures = vertex_heat(result.mesh, program, job.tool_radius)
+                info.update(figures)
+                info["verify"] = "PASS" if report["verify"]["pass"] else "FAIL"
+            write_viewer(args.html, result.mesh.V, result.mesh.F, passes, rapids=rapids, heat=heat,
+                         title=f"conformill {job.pattern}: {mesh.name}", info=info)
             report["timings_s"]["html"] = time.perf_counter() - t
         report["timings_s"]["total"] = time.perf_counter() - t0
         report["peak_rss_mb"] = peak_rss_mb()
@@ -117,7 +128,48 @@ def run(args) -> int:
             write_json(args.report, report)
     if not args.quiet:
         _summary(report, args.output)
+    if args.verify and not report["verify"]["pass"]:
+        return 1  # the files are kept for inspection; the check failed
     return 0
+
+
+SCALLOP_SLACK = 1.05
+"""--verify passes when scallop p99.9 <= SCALLOP_SLACK * H (and gouge max <= E)."""
+
+
+def _verify(mesh, program_path, job, n_samples: int, quiet: bool) -> dict:
+    """Run the independent simulation on the program as written to disk.
+
+    The program is read back from the G-code file (not from the planner's arrays), so the
+    check covers the writer too. Thresholds: scallop ``1.05 H`` at p99.9 over the samples
+    farther than ``R`` from the boundary, no uncut sample, gouge at most ``E``.
+    """
+    from conformill.verify.gcode import read_gcode
+    from conformill.verify.simulate import verify
+
+    program = read_gcode(program_path)
+    bar = None
+    if not quiet and sys.stderr.isatty():
+        from tqdm import tqdm
+
+        bar = tqdm(total=n_samples, desc="verify", unit="samples", unit_scale=True, leave=False, file=sys.stderr)
+    try:
+        res = verify(mesh, program, job.tool_radius, n_samples=n_samples, scallop=SCALLOP_SLACK * job.scallop,
+                     gouge=job.tolerance, progress=bar.update if bar is not None else None, judge="reachable")
+    finally:
+        if bar is not None:
+            bar.close()
+    s = res.summary
+    keep = ("samples", "interior_samples", "scallop", "scallop_mean", "uncut_fraction", "above_scallop_fraction",
+            "gouge_max", "gouge_where", "gouge_line", "rapid_min_clearance", "rapid_min_line",
+            "retract_min_clearance", "n_rapids", "n_retracts", "thresholds", "judged_on", "failures", "pass")
+    out = {k: s[k] if k in s else s["interior"].get(k) for k in keep}
+    out["scallop_over_h"] = {k: v / job.scallop for k, v in s["scallop"].items()}
+    q = s["reachable"]
+    out["reachable"] = {"unreachable_fraction": q["unreachable_fraction"], "scallop": q["scallop"],
+                        "scallop_over_h": {k: v / job.scallop for k, v in q["scallop"].items()},
+                        "uncut_fraction": q["uncut_fraction"], "gouge_max": q["gouge_max"]}
+    return out
 
 
 def peak_rss_mb() -> float:
@@ -149,7 +201,12 @@ def _summary(rep: dict, out: str) -> None:
     if "verify" in rep:
         v = rep["verify"]
         s = v.get("scallop", {})
-        lines.append(f"  verify            scallop p99.9 {s.get('p999', float('nan')):.4f} mm, max {s.get('max', float('nan')):.4f}, "
-                     f"gouge max {v.get('gouge_max', float('nan')):.4f} mm, uncut {100 * v.get('uncut_fraction', 0):.3f}%")
+        q = v["reachable"]
+        lines.append(f"  verify            interior: scallop p50 {s['p50']:.4f} / p99.9 {s['p999']:.4f} / max "
+                     f"{s['max']:.4f} mm, uncut {100 * v['uncut_fraction']:.3f}%, gouge max {v['gouge_max']:.4f} mm")
+        lines.append(f"                    reachable ({100 * (1 - q['unreachable_fraction']):.2f}% of it): scallop "
+                     f"p99.9 {q['scallop']['p999']:.4f} mm = {q['scallop_over_h']['p999']:.3f} H, uncut "
+                     f"{100 * q['uncut_fraction']:.3f}%; rapid clearance {v['rapid_min_clearance']:.2f} mm: "
+                     + ("PASS" if v["pass"] else "FAIL (" + "; ".join(v["failures"]) + ")"))
     lines.append(f"  time              {rep['timings_s']['total']:.2f} s -> {out}")
     print("\n".join(lines), file=sys.stdout)

@@ -30,6 +30,9 @@ def add_arguments(parser) -> None:
                         help="sample normals: interpolated vertex normals (default) or face normals")
     parser.add_argument("--chord-tol", type=float, default=0.001, metavar="E",
                         help="chord tolerance for linearising arcs, mm (default 0.001)")
+    parser.add_argument("--judge", choices=("interior", "reachable"), default="interior",
+                        help="check the scallop limit on all interior samples (default) or only where a "
+                             "3-axis ball can reach (undercuts and pockets tighter than the ball excluded)")
     parser.add_argument("--report", default=None, metavar="OUT.json", help="write a JSON report")
     parser.add_argument("--plot", default=None, metavar="OUT.png", help="write a PNG heat map")
 
@@ -51,25 +54,31 @@ def _fmt(x, unit=" mm"):
 
 def table(summary: dict) -> str:
     """The summary as a plain-text table (interior samples and all samples)."""
-    i, a = summary["interior"], summary["all"]
+    i, a, q = summary["interior"], summary["all"], summary["reachable"]
+    sets = (i, q, a)
+
+    def pct(key):
+        return tuple(f"{100 * x[key]:.4g} %" for x in sets)
+
     rows = [
-        ("samples", f"{i['samples']}", f"{a['samples']}"),
-        ("scallop p50", _fmt(i["scallop"]["p50"]), _fmt(a["scallop"]["p50"])),
-        ("scallop p99", _fmt(i["scallop"]["p99"]), _fmt(a["scallop"]["p99"])),
-        ("scallop p99.9", _fmt(i["scallop"]["p999"]), _fmt(a["scallop"]["p999"])),
-        ("scallop max", _fmt(i["scallop"]["max"]), _fmt(a["scallop"]["max"])),
+        ("samples", *(f"{x['samples']}" for x in sets)),
+        ("scallop p50", *(_fmt(x["scallop"]["p50"]) for x in sets)),
+        ("scallop p99", *(_fmt(x["scallop"]["p99"]) for x in sets)),
+        ("scallop p99.9", *(_fmt(x["scallop"]["p999"]) for x in sets)),
+        ("scallop max", *(_fmt(x["scallop"]["max"]) for x in sets)),
     ]
     if "above_scallop_fraction" in i:
-        rows.append(("area above H", f"{100 * i['above_scallop_fraction']:.4g} %",
-                     f"{100 * a['above_scallop_fraction']:.4g} %"))
+        rows.append(("area above H", *pct("above_scallop_fraction")))
     rows += [
-        ("uncut area", f"{100 * i['uncut_fraction']:.4g} %", f"{100 * a['uncut_fraction']:.4g} %"),
-        ("gouge max", _fmt(i["gouge_max"]), _fmt(a["gouge_max"])),
-        ("gouged area (>1 um)", f"{100 * i['gouged_fraction']:.4g} %", f"{100 * a['gouged_fraction']:.4g} %"),
+        ("uncut area", *pct("uncut_fraction")),
+        ("gouge max", *(_fmt(x["gouge_max"]) for x in sets)),
+        ("gouged area (>1 um)", *pct("gouged_fraction")),
     ]
     w0 = max(len(r[0]) for r in rows) + 2
-    out = [f"{'':<{w0}}{'interior (> r from boundary)':>30}{'all samples':>16}"]
-    out += [f"{r[0]:<{w0}}{r[1]:>30}{r[2]:>16}" for r in rows]
+    out = [f"{'':<{w0}}{'interior (> r from boundary)':>30}{'reachable interior':>20}{'all samples':>16}"]
+    out += [f"{r[0]:<{w0}}{r[1]:>30}{r[2]:>20}{r[3]:>16}" for r in rows]
+    out.append(f"unreachable by a 3-axis ball (undercut, or tighter than the ball): "
+               f"{100 * q['unreachable_fraction']:.3g} % of the interior; limits judged on: {summary['judged_on']}")
     g = summary
     if g["gouge_where"] is not None:
         x, y, z = g["gouge_where"]
@@ -112,7 +121,7 @@ def run(args) -> int:
                    file=sys.stderr)
     try:
         res = verify(mesh, program, args.tool_radius, n_samples=args.samples, seed=args.seed,
-                     scallop=args.scallop, gouge=args.gouge, normals=args.normals,
+                     scallop=args.scallop, gouge=args.gouge, normals=args.normals, judge=args.judge,
                      progress=bar.update if bar is not None else None)
     finally:
         if bar is not None:

@@ -77,7 +77,11 @@ def polygon_disk(outline: np.ndarray, spacing: float, jitter: float = 0.0, seed:
     F = tri.simplices.astype(np.int64)
     cen = P[F].mean(axis=1)
     F = F[path.contains_points(cen)]
-    # drop faces made only of boundary vertices that are ears across a concave notch
+    # Qhull closes runs of collinear outline points with flat triangles: drop them (their
+    # middle vertex then leaves the outline, which stays the same polygon)
+    a, b, c = P[F[:, 0]], P[F[:, 1]], P[F[:, 2]]
+    area2 = np.abs((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]))
+    F = F[area2 > 1e-6 * spacing * spacing]
     used = np.unique(F)
     remap = np.full(len(P), -1, dtype=np.int64)
     remap[used] = np.arange(len(used))
@@ -180,3 +184,77 @@ def freeform_patch(spacing: float = 2.0, jitter: float = 0.3, seed: int = 1):
         )
 
     return height_field(notched_outline(), z, spacing, jitter, seed, name="freeform_patch")
+
+
+def _wavy_outline(rx: float, ry: float, waves, samples: int = 360):
+    """A closed outline ``r(t) = 1 + sum a cos(k t + phase)`` on an ellipse, CCW."""
+    t = 2 * np.pi * np.arange(samples) / samples
+    r = np.ones_like(t)
+    for k, a, ph in waves:
+        r += a * np.cos(k * t + ph)
+    return np.column_stack([rx * r * np.cos(t), ry * r * np.sin(t)])
+
+
+def face_like(seed: int = 0, spacing: float = 1.1, jitter: float = 0.3, size: float = 130.0):
+    """A face-like relief: a dome with a nose, brow, cheeks and eye sockets (seeded variations).
+
+    About ``size`` x ``0.8 size`` mm over a wavy, non-convex outline; relief about 25-30 mm;
+    slopes up to about 55 degrees; concave radii above about 10 mm (twice a 4 mm ball and
+    more). ``spacing`` 1.1 gives about 20k irregular faces.
+    """
+    rng = np.random.default_rng(seed)
+    a, b = size / 2, 0.4 * size
+    waves = [(2, 0.03 * rng.uniform(0.5, 1.0), rng.uniform(0, 2 * np.pi)),
+             (3, 0.06 * rng.uniform(0.7, 1.0), rng.uniform(0, 2 * np.pi)),
+             (5, 0.025 * rng.uniform(0.5, 1.0), rng.uniform(0, 2 * np.pi))]
+    outline = _wavy_outline(0.93 * a, 0.93 * b, waves)
+    dome = 16.0 + 4.0 * rng.uniform()
+    nose = 9.0 + 3.0 * rng.uniform()
+    eye = 4.0 + 1.5 * rng.uniform()
+    tilt = rng.uniform(-0.1, 0.1)
+
+    def z(x, y):
+        x = x + tilt * y
+        q = (x / a) ** 2 + (y / b) ** 2
+        base = dome * np.exp(-1.6 * q)
+        g = lambda cx, cy, sx, sy: np.exp(-(((x - cx) / sx) ** 2 + ((y - cy) / sy) ** 2))  # noqa: E731
+        return (base
+                + nose * g(2.0, 0.0, 14.0, 8.0)  # nose along x
+                + 3.0 * g(22.0, 0.0, 6.0, 20.0)  # brow ridge
+                - eye * g(15.0, 15.0, 9.0, 8.0) - eye * g(15.0, -15.0, 9.0, 8.0)  # sockets
+                + 3.0 * g(-8.0, 22.0, 14.0, 10.0) + 3.0 * g(-8.0, -22.0, 14.0, 10.0)  # cheeks
+                + 2.0 * g(-25.0, 0.0, 5.0, 14.0))  # lips
+
+    return height_field(outline, z, spacing, jitter, seed, name=f"face_like_{seed}")
+
+
+def cad_like(seed: int = 0, spacing: float = 1.1, jitter: float = 0.3, size: float = 130.0):
+    """A CAD-like free-form panel: blended bumps, a saddle and a valley (seeded variations).
+
+    About ``size`` x ``0.75 size`` mm over a notched (non-convex) outline with rounded
+    corners; relief about 20-30 mm; slopes up to about 50 degrees; concave radii above
+    about 10 mm.
+    """
+    rng = np.random.default_rng(seed + 1000)
+    w, h = size, 0.75 * size
+    o = notched_outline(w, h, notch=0.25 * size)
+    # round the outline: resample finely and smooth the corners with a short moving average
+    closed = np.vstack([o, o[:1]])
+    seg = np.linalg.norm(np.diff(closed, axis=0), axis=1)
+    t = np.concatenate([[0], np.cumsum(seg)])
+    s = np.arange(0, t[-1], 0.5)
+    P = np.column_stack([np.interp(s, t, closed[:, 0]), np.interp(s, t, closed[:, 1])])
+    k = 13
+    Pp = np.vstack([P[-k:], P, P[:k]])
+    ker = np.ones(2 * k + 1) / (2 * k + 1)
+    outline = np.column_stack([np.convolve(Pp[:, 0], ker, "valid"), np.convolve(Pp[:, 1], ker, "valid")])[::4]
+    c = rng.uniform(-1, 1, 6)
+
+    def z(x, y):
+        g = lambda cx, cy, sx, sy: np.exp(-(((x - cx) / sx) ** 2 + ((y - cy) / sy) ** 2))  # noqa: E731
+        return (14.0 * (1 + 0.2 * c[0]) * g(0.25 * w + 5 * c[1], -0.1 * h, 22.0, 18.0)
+                - 7.0 * (1 + 0.2 * c[2]) * g(-0.25 * w, 0.05 * h + 5 * c[3], 18.0, 16.0)
+                + 0.0012 * (x * x - y * y) * (1 + 0.2 * c[4])
+                + 4.0 * np.sin(x / 22.0 + c[5]) + 0.04 * y)
+
+    return height_field(outline, z, spacing, jitter, seed, name=f"cad_like_{seed}")

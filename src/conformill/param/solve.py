@@ -8,9 +8,10 @@ Solvers, fastest first as measured on ``large_igea_face_subdiv1.ply`` (310k vert
 ``benchmarks/bench_solvers.py``):
 
 ``"pardiso"``
-    MKL Pardiso through ``pypardiso``, real non-symmetric. A fresh ``PyPardisoSolver`` is made for
-    every call and the matrix factorized explicitly: ``pypardiso.spsolve`` keeps the last
-    factorization and can silently reuse it for another matrix of the same shape.
+    MKL Pardiso (the ``libmkl_rt`` that pypardiso installs), real non-symmetric, called through
+    ctypes by :class:`_Pardiso`: a fresh solver state for every call, the matrix factorized
+    explicitly (``pypardiso.spsolve`` keeps the last factorization and can silently reuse it for
+    another matrix of the same shape). Importing pypardiso itself costs most of a second.
 ``"superlu"``
     ``scipy.sparse.linalg.splu`` with the COLAMD ordering: the pure-scipy fallback when
     pypardiso cannot be imported (several times slower and hungrier).
@@ -21,6 +22,7 @@ Solvers, fastest first as measured on ``large_igea_face_subdiv1.ply`` (310k vert
 from __future__ import annotations
 
 import logging
+import os
 
 import numpy as np
 import scipy.sparse as sp
@@ -46,12 +48,120 @@ def _relative_residual(A, X, rhs) -> float:
 
 
 def have_pardiso() -> bool:
-    """True when pypardiso (MKL) can be imported."""
+    """True when MKL Pardiso can be loaded (``libmkl_rt``, as installed with pypardiso)."""
     try:
-        import pypardiso  # noqa: F401
-    except Exception:  # ImportError, or MKL failing to load
+        _mkl_pardiso()
+    except Exception:  # not found, or MKL failing to load
         return False
     return True
+
+
+_MKL = []
+
+
+def _mkl_rt_candidates():
+    """Where ``libmkl_rt`` may be: ``$PYPARDISO_MKL_RT``, then the interpreter's own lib folders.
+
+    pypardiso's import searches the whole ``sys.prefix`` tree recursively when
+    ``ctypes.util.find_library`` fails (the usual case for a pip-installed MKL), which costs most
+    of a second; the library is normally right in ``sys.prefix/lib``.
+    """
+    import glob
+    import site
+    import sys
+
+    env = os.environ.get("PYPARDISO_MKL_RT")
+    if env:
+        yield env
+    for base in (sys.prefix, getattr(site, "USER_BASE", None) or sys.prefix):
+        for pat in ("lib/libmkl_rt.so*", "lib/libmkl_rt*.dylib", "Library/bin/mkl_rt*.dll"):
+            yield from sorted(glob.glob(os.path.join(base, pat)), key=len)
+
+
+def _mkl_pardiso():
+    """MKL's ``pardiso`` and ``pardisoinit`` through ctypes (cached); falls back to pypardiso's search."""
+    if _MKL:
+        return _MKL[0]
+    import ctypes
+
+    lib = None
+    for path in _mkl_rt_candidates():
+        try:
+            lib = ctypes.CDLL(path)
+            break
+        except OSError:
+            continue
+    if lib is None:  # let pypardiso find it (slow, but it knows more places)
+        from pypardiso import PyPardisoSolver
+
+        lib = PyPardisoSolver().libmkl
+    fn = lib.pardiso
+    fn.restype = None
+    fn.argtypes = [ctypes.c_void_p] * 16
+    init = lib.pardisoinit
+    init.restype = None
+    init.argtypes = [ctypes.c_void_p] * 3
+    _MKL.append((fn, init))
+    return _MKL[0]
+
+
+class _Pardiso:
+    """Minimal MKL Pardiso driver (real, non-symmetric ``mtype 11``), zero-based CSR input.
+
+    One analysis + factorization (phase 12), any number of solves (phase 33, all right-hand
+    sides at once), then :meth:`free`. The matrix arrays are held until then, as MKL requires.
+    pypardiso does the same but copies and hashes the matrix, shifts the indices to one-based on
+    every call and costs most of a second to import.
+    """
+
+    def __init__(self, A: sp.csr_matrix, iparm: dict):
+        import ctypes
+
+        self._ct = ctypes
+        self.fn, init = _mkl_pardiso()
+        self.n = A.shape[0]
+        self.data = np.ascontiguousarray(A.data, dtype=np.float64)
+        self.ia = np.ascontiguousarray(A.indptr, dtype=np.int32)
+        self.ja = np.ascontiguousarray(A.indices, dtype=np.int32)
+        self.pt = np.zeros(64, dtype=np.int64)
+        self.iparm = np.zeros(64, dtype=np.int32)
+        if iparm:  # as pypardiso does: zeros, then the given values
+            for k, v in iparm.items():
+                self.iparm[k - 1] = v
+        else:  # MKL's defaults for mtype 11
+            init(self.pt.ctypes.data_as(ctypes.c_void_p), ctypes.byref(ctypes.c_int32(11)),
+                 self.iparm.ctypes.data_as(ctypes.c_void_p))
+        self.iparm[0] = 1  # iparm given
+        self.iparm[34] = 1  # zero-based indexing
+        self.active = False
+
+    def _call(self, phase: int, b: np.ndarray | None = None, x: np.ndarray | None = None) -> None:
+        ct = self._ct
+        i32 = ct.c_int32
+        err = i32(0)
+        nrhs = 1 if b is None or b.ndim == 1 else b.shape[1]
+        ptr = lambda a: a.ctypes.data_as(ct.c_void_p)  # noqa: E731
+        self.fn(ptr(self.pt), ct.byref(i32(1)), ct.byref(i32(1)), ct.byref(i32(11)), ct.byref(i32(phase)),
+                ct.byref(i32(self.n)), ptr(self.data), ptr(self.ia), ptr(self.ja), None, ct.byref(i32(nrhs)),
+                ptr(self.iparm), ct.byref(i32(0)), None if b is None else ptr(b), None if x is None else ptr(x),
+                ct.byref(err))
+        if err.value != 0:
+            raise RuntimeError(f"MKL Pardiso phase {phase} failed with error {err.value}")
+
+    def factorize(self) -> None:
+        self.active = True
+        self._call(12)
+
+    def solve(self, rhs: np.ndarray) -> np.ndarray:
+        b = np.asfortranarray(rhs, dtype=np.float64)
+        x = np.zeros_like(b, order="F")
+        self._call(33, b, x)
+        return np.ascontiguousarray(x)
+
+    def free(self) -> None:
+        if self.active:
+            self.active = False
+            self._call(-1)
 
 
 #: below this many unknowns SuperLU wins: loading MKL alone costs about a second
@@ -111,18 +221,18 @@ def solve_linear(A: sp.csr_matrix, rhs: np.ndarray, solver: str):
     X : (nI, k) float64
     """
     if solver == "pardiso":
-        from pypardiso import PyPardisoSolver
-
+        A = A.tocsr()
+        if not A.has_sorted_indices:
+            A.sort_indices()
+        if np.any(np.diff(A.indptr) == 0):
+            raise ValueError("the matrix has an empty row (singular)")
         for iparm in (PARDISO_FAST, {}):
-            ps = PyPardisoSolver(mtype=11)
-            ps.set_statistical_info_off()
-            for k, v in iparm.items():
-                ps.set_iparm(k, v)
+            ps = _Pardiso(A, iparm)
             try:
-                ps.factorize(A)
-                X = np.asarray(ps.solve(A, rhs)).reshape(rhs.shape)
+                ps.factorize()
+                X = ps.solve(rhs).reshape(rhs.shape)
             finally:
-                ps.free_memory(everything=True)
+                ps.free()
             # the fast settings skip scaling and matching, safe for the M-matrices of positive
             # weights; anything else (cotangent weights on bad triangles) retries MKL's defaults
             if iparm and _relative_residual(A, X, rhs) > MAX_RESIDUAL:

@@ -67,210 +67,245 @@ def corner_angles(V: np.ndarray, F: np.ndarray) -> np.ndarray:
     return np.arctan2(cr, dt)
 
 
-@njit(cache=True)
-def _cycles(nxt, group_start, group_size, theta):
-    """Walk each vertex's wedge cycle: slot order and the angle before each slot.
+#: kind -> code of the numba kernel
+_KIND_CODE = {"geodesic": 0, "floater": 1, "mean_value": 2, "cotangent": 3}
+#: error codes of :func:`_weights_kernel`
+_OK, _DUP_EDGE, _OPEN_FAN, _NOT_CYCLE, _ZERO_EDGE, _COT_ROW, _NONFINITE = range(7)
 
-    ``nxt[w]`` is the wedge following ``w`` around its vertex (indices into the sorted wedge
-    arrays); wedges of one vertex are contiguous from ``group_start``. Returns ``order`` (slot ->
-    wedge), ``phi`` (angle swept from the group's first spoke to the slot's spoke) and the number
-    of groups whose wedges do not form one closed cycle (non-manifold or inconsistently oriented).
+
+@njit(cache=True)
+def _weights_kernel(V, F, bmask, kind):
+    """All interior weights in one pass over the vertex fans (METHOD 1a-1b); CSR arrays out.
+
+    Per interior vertex ``v``: its wedges (face corners ``v -> s -> t``, counter-clockwise
+    around ``v``) sorted by spoke ``s``; the cycle of wedges (the next wedge's spoke is ``t``)
+    walked from the smallest spoke, which orders the spokes and accumulates the swept angle
+    ``phi``; then the weights of the kind, per spoke. CSR entries are in column order.
+
+    Returns ``indptr, indices, data, err, err_a, err_b, fallbacks, n_clipped``: ``err`` is one
+    of the ``_DUP_EDGE ...`` codes (``_OK`` = 0) with the vertex/spoke ids it concerns.
     """
-    n_w = nxt.shape[0]
-    order = np.empty(n_w, dtype=np.int64)
-    phi = np.empty(n_w, dtype=np.float64)
-    seen = np.zeros(n_w, dtype=np.bool_)
-    bad = 0
-    for g in range(group_start.shape[0]):
-        s = group_start[g]
-        d = group_size[g]
-        w = s
-        acc = 0.0
+    n = V.shape[0]
+    m = F.shape[0]
+    indptr = np.zeros(n + 1, dtype=np.int64)
+    for f in range(m):
+        for c in range(3):
+            v = F[f, c]
+            if not bmask[v]:
+                indptr[v + 1] += 1
+    for v in range(n):
+        indptr[v + 1] += indptr[v]
+    ns = indptr[n]
+    spoke = np.empty(ns, dtype=np.int64)
+    other = np.empty(ns, dtype=np.int64)
+    fill = indptr[:n].copy()
+    for f in range(m):
+        for c in range(3):
+            v = F[f, c]
+            if not bmask[v]:
+                p = fill[v]
+                spoke[p] = F[f, (c + 1) % 3]
+                other[p] = F[f, (c + 2) % 3]
+                fill[v] = p + 1
+    data = np.zeros(ns, dtype=np.float64)
+    err = _OK
+    err_a = -1
+    err_b = -1
+    # sort each fan by spoke (insertion sort: a handful of entries), stable like np.argsort
+    for v in range(n):
+        s0 = indptr[v]
+        s1 = indptr[v + 1]
+        for i in range(s0 + 1, s1):
+            ks = spoke[i]
+            ko = other[i]
+            j = i - 1
+            while j >= s0 and spoke[j] > ks:
+                spoke[j + 1] = spoke[j]
+                other[j + 1] = other[j]
+                j -= 1
+            spoke[j + 1] = ks
+            other[j + 1] = ko
+        if err == _OK:
+            for i in range(s0 + 1, s1):
+                if spoke[i] == spoke[i - 1]:
+                    err = _DUP_EDGE
+                    err_a = v
+                    err_b = spoke[i]
+                    break
+    if err != _OK:
+        return indptr, spoke, data, err, err_a, err_b, 0, 0
+    # successor of each wedge around its vertex: the wedge whose spoke is this one's 'other'
+    nxt = np.empty(ns, dtype=np.int64)
+    for v in range(n):
+        s0 = indptr[v]
+        s1 = indptr[v + 1]
+        for i in range(s0, s1):
+            t = other[i]
+            nxt[i] = -1
+            for j in range(s0, s1):
+                if spoke[j] == t:
+                    nxt[i] = j
+                    break
+            if nxt[i] < 0 and err == _OK:
+                err = _OPEN_FAN
+                err_a = v
+                err_b = t
+    if err != _OK:
+        return indptr, spoke, data, err, err_a, err_b, 0, 0
+    # per fan: slots in cycle order, geometry, weights
+    maxd = 0
+    for v in range(n):
+        maxd = max(maxd, indptr[v + 1] - indptr[v])
+    order = np.empty(maxd, dtype=np.int64)
+    theta = np.empty(maxd)
+    phi = np.empty(maxd)
+    area2 = np.empty(maxd)
+    dot = np.empty(maxd)
+    rho = np.empty(maxd)
+    rho_next = np.empty(maxd)
+    w = np.empty(maxd)
+    seen = np.zeros(maxd, dtype=np.bool_)
+    n_bad = 0
+    fallbacks = 0
+    n_clip = 0
+    for v in range(n):
+        s0 = indptr[v]
+        d = indptr[v + 1] - s0
+        if d == 0:
+            continue
+        seen[:d] = False
+        i = s0
         ok = True
         for r in range(d):
-            if w < 0 or seen[w]:
+            if seen[i - s0]:
                 ok = False
                 break
-            seen[w] = True
-            order[s + r] = w
-            phi[s + r] = acc
-            acc += theta[w]
-            w = nxt[w]
-        if not ok or w != s:
-            bad += 1
-            for r in range(d):  # keep arrays defined; the caller raises
-                order[s + r] = s + r
-                phi[s + r] = 0.0
-    return order, phi, bad
-
-
-@njit(cache=True)
-def _opposite_slot(phi, theta, group_start, group_size, slot_group):
-    """For each slot ``l``, the slot ``k`` whose wedge contains direction ``phi_l + Theta/2``.
-
-    Works in unscaled angles: Floater's scaled direction ``phi'_l + pi`` is the same wedge because
-    the scaling is linear. Returns ``k`` and ``alpha_k = (phi_k - phi_l) mod Theta``.
-    """
-    n_s = phi.shape[0]
-    k_out = np.empty(n_s, dtype=np.int64)
-    alpha = np.empty(n_s, dtype=np.float64)
-    for l in range(n_s):
-        g = slot_group[l]
-        s = group_start[g]
-        d = group_size[g]
-        total = phi[s + d - 1] + theta[s + d - 1]
-        tgt = phi[l] + 0.5 * total
-        if tgt >= total:
-            tgt -= total
-        # binary search: last slot in the group with phi <= tgt
-        lo = s
-        hi = s + d - 1
-        while lo < hi:
-            mid = (lo + hi + 1) // 2
-            if phi[mid] <= tgt:
-                lo = mid
-            else:
-                hi = mid - 1
-        k_out[l] = lo
-        a = phi[lo] - phi[l]
-        if a < 0.0:
-            a += total
-        alpha[l] = a
-    return k_out, alpha
-
-
-class _Fans:
-    """Spokes of interior vertices in cyclic order, as flat arrays over slots (vertex, spoke)."""
-
-    def __init__(self, V, F, boundary_mask):
-        n = V.shape[0]
-        m = F.shape[0]
-        vert = F.reshape(-1)
-        spoke = F[:, [1, 2, 0]].reshape(-1)  # wedge (v -> s -> t) is CCW around v for a CCW face
-        other = F[:, [2, 0, 1]].reshape(-1)
-        keep = ~boundary_mask[vert]
-        wid = np.flatnonzero(keep)
-        vert, spoke, other = vert[wid], spoke[wid], other[wid]
-        key = vert * n + spoke
-        srt = np.argsort(key, kind="stable")
-        key = key[srt]
-        wid, vert, spoke, other = wid[srt], vert[srt], spoke[srt], other[srt]
-        if len(key) > 1 and np.any(key[1:] == key[:-1]):
-            dup = np.flatnonzero(key[1:] == key[:-1])[0]
-            raise ParameterizationError(
-                f"edge ({vert[dup]}, {spoke[dup]}) is used twice in the same direction: "
-                "the mesh is not consistently oriented or not manifold there"
-            )
-        nkey = vert * n + other
-        nxt = np.searchsorted(key, nkey)
-        nxt[nxt >= len(key)] = 0
-        miss = key[nxt] != nkey
-        if np.any(miss):
-            i = np.flatnonzero(miss)[0]
-            raise ParameterizationError(
-                f"interior vertex {vert[i]} has an open fan (edge ({vert[i]}, {other[i]}) has no "
-                "twin): the mesh is not a consistently oriented manifold there"
-            )
-        nxt = np.where(miss, -1, nxt)
-        # 3D wedge geometry, per sorted wedge
-        pv = V[vert]
-        a = V[spoke] - pv
-        b = V[other] - pv
-        cr = np.linalg.norm(np.cross(a, b), axis=1)
-        dt = np.einsum("ij,ij->i", a, b)
-        theta = np.arctan2(cr, dt)
-        verts, group_start, group_size = np.unique(vert, return_index=True, return_counts=True)
-        order, phi, bad = _cycles(nxt, group_start.astype(np.int64), group_size.astype(np.int64), theta)
-        if bad:
-            raise ParameterizationError(
-                f"{bad} interior vertices have fans that are not one closed cycle of faces "
-                "(non-manifold vertex or inconsistent orientation)"
-            )
-        self.n = n
-        self.order = order  # slot -> sorted wedge (sorted by (v, spoke))
-        self.vert = vert[order]
-        self.spoke = spoke[order]
-        self.theta = theta[order]
-        self.area2 = cr[order]  # twice the area of the slot's face (v, s_k, s_k+1)
-        self.dot = dt[order]
-        self.rho = np.linalg.norm(a, axis=1)[order]
-        self.rho_next = np.linalg.norm(b, axis=1)[order]
-        self.phi = phi
-        self.verts = verts
-        self.group_start = group_start.astype(np.int64)
-        self.group_size = group_size.astype(np.int64)
-        gid = np.repeat(np.arange(len(verts)), group_size)
-        self.gid = gid
-        self.deg = group_size[gid].astype(np.float64)
-        self.total = np.add.reduceat(theta[order], group_start) if len(verts) else np.zeros(0)
-        pos = np.arange(len(order)) - self.group_start[gid]
-        self.next = np.where(pos == self.group_size[gid] - 1, self.group_start[gid], np.arange(len(order)) + 1)
-        self.prev = np.where(pos == 0, self.group_start[gid] + self.group_size[gid] - 1, np.arange(len(order)) - 1)
-        short = np.flatnonzero(self.rho <= 0.0)
-        if len(short):
-            i = short[0]
-            raise ParameterizationError(
-                f"zero-length edge ({self.vert[i]}, {self.spoke[i]}): duplicate vertices"
-            )
-
-    def to_csr(self, w_slot: np.ndarray) -> sp.csr_matrix:
-        """CSR matrix ``(n, n)`` from one weight per slot; column indices sorted per row."""
-        n = self.n
-        data = np.empty_like(w_slot)
-        data[self.order] = w_slot  # back to (v, spoke)-sorted order
-        cols = np.empty(len(w_slot), dtype=np.int64)
-        cols[self.order] = self.spoke
-        counts = np.zeros(n, dtype=np.int64)
-        counts[self.verts] = self.group_size
-        indptr = np.concatenate([[0], np.cumsum(counts)])
-        W = sp.csr_matrix((data, cols, indptr), shape=(n, n))
-        W.has_sorted_indices = True
-        return W
-
-
-def _barycentric_pairs(fan: _Fans, scaled: bool):
-    """Barycentric coordinates of ``v`` for every spoke ``l`` (METHOD 1a/1b).
-
-    Returns ``(k, mu_l, mu_k, mu_k1, ok)`` over slots ``l``: the opposite wedge ``k`` (between
-    spokes ``k`` and ``k+1``), the three normalised coordinates, and for the unscaled (geodesic)
-    construction whether the wedge qualifies (both swept angles below pi).
-    """
-    k, alpha = _opposite_slot(fan.phi, fan.theta, fan.group_start, fan.group_size, fan.gid)
-    total = fan.total[fan.gid]
-    theta_k = fan.theta[k]
-    beta = total - alpha - theta_k  # angle swept from spoke k+1 on to spoke l
-    rho_l = fan.rho
-    rho_k = fan.rho[k]
-    rho_k1 = fan.rho_next[k]
-    if scaled:
-        s = 2.0 * np.pi / total
-        # mu ~ areas of the planar triangles opposite each corner, divided by rho_l rho_k rho_k1
-        m_l = np.sin(theta_k * s) / rho_l
-        m_k = np.sin(np.maximum(beta, 0.0) * s) / rho_k
-        m_k1 = np.sin(alpha * s) / rho_k1
-        ok = np.ones(len(k), dtype=bool)
-    else:
-        m_l = fan.area2[k] / (rho_k * rho_k1 * rho_l)  # the face's own area, exactly
-        m_k = np.sin(np.maximum(beta, 0.0)) / rho_k
-        m_k1 = np.sin(alpha) / rho_k1
-        # a tolerance: on regular meshes the geodesic runs exactly along the opposite spoke
-        # (alpha or beta = pi up to rounding); the degenerate triangle still gives valid
-        # coordinates (the sine is clipped to 0 below)
-        ok = (alpha < np.pi + _ANGLE_TOL) & (beta < np.pi + _ANGLE_TOL)
-    # a scaled wedge wider than pi (a cone vertex with one huge angle) puts the origin outside
-    # the triangle: clip the negative coordinate, which keeps the combination convex
-    neg = (m_l < 0) | (m_k < 0) | (m_k1 < 0)
-    m_l, m_k, m_k1 = np.maximum(m_l, 0.0), np.maximum(m_k, 0.0), np.maximum(m_k1, 0.0)
-    tot = m_l + m_k + m_k1
-    return k, m_l / tot, m_k / tot, m_k1 / tot, ok, neg
-
-
-def _averaged(fan: _Fans, k, mu_l, mu_k, mu_k1) -> np.ndarray:
-    """``w_j = (1/d) sum_l mu^l_j`` as one weight per slot."""
-    ns = len(fan.vert)
-    idx = np.concatenate([np.arange(ns), k, fan.next[k]])
-    val = np.concatenate([mu_l, mu_k, mu_k1]) / np.concatenate([fan.deg] * 3)
-    return np.bincount(idx, weights=val, minlength=ns)
+            seen[i - s0] = True
+            order[r] = i
+            i = nxt[i]
+        if not ok or i != s0:
+            n_bad += 1
+            continue
+        if n_bad:
+            continue
+        px = V[v, 0]
+        py = V[v, 1]
+        pz = V[v, 2]
+        acc = 0.0
+        for r in range(d):
+            i = order[r]
+            ax = V[spoke[i], 0] - px
+            ay = V[spoke[i], 1] - py
+            az = V[spoke[i], 2] - pz
+            bx = V[other[i], 0] - px
+            by = V[other[i], 1] - py
+            bz = V[other[i], 2] - pz
+            cx = ay * bz - az * by
+            cy = az * bx - ax * bz
+            cz = ax * by - ay * bx
+            cr = np.sqrt(cx * cx + cy * cy + cz * cz)
+            dt = ax * bx + ay * by + az * bz
+            area2[r] = cr
+            dot[r] = dt
+            theta[r] = np.arctan2(cr, dt)
+            rho[r] = np.sqrt(ax * ax + ay * ay + az * az)
+            rho_next[r] = np.sqrt(bx * bx + by * by + bz * bz)
+            phi[r] = acc
+            acc += theta[r]
+            if rho[r] <= 0.0 and err == _OK:
+                err = _ZERO_EDGE
+                err_a = v
+                err_b = spoke[i]
+        if err != _OK:
+            continue
+        total = acc
+        if kind <= 1:  # geodesic, floater
+            for r in range(d):
+                w[r] = 0.0
+            for pass_ in range(3):
+                for l in range(d):
+                    # opposite wedge k: the last slot with phi <= phi_l + Theta/2 (mod Theta)
+                    tgt = phi[l] + 0.5 * total
+                    if tgt >= total:
+                        tgt -= total
+                    lo = 0
+                    hi = d - 1
+                    while lo < hi:
+                        mid = (lo + hi + 1) // 2
+                        if phi[mid] <= tgt:
+                            lo = mid
+                        else:
+                            hi = mid - 1
+                    k = lo
+                    alpha = phi[k] - phi[l]
+                    if alpha < 0.0:
+                        alpha += total
+                    theta_k = theta[k]
+                    beta = total - alpha - theta_k
+                    rho_l = rho[l]
+                    rho_k = rho[k]
+                    rho_k1 = rho_next[k]
+                    scaled = kind == 1
+                    if not scaled and not (alpha < np.pi + _ANGLE_TOL and beta < np.pi + _ANGLE_TOL):
+                        scaled = True  # a saddle: no opposite face, Floater's rule
+                        if pass_ == 0:
+                            fallbacks += 1
+                    if scaled:
+                        sc = 2.0 * np.pi / total
+                        m_l = np.sin(theta_k * sc) / rho_l
+                        m_k = np.sin(max(beta, 0.0) * sc) / rho_k
+                        m_k1 = np.sin(alpha * sc) / rho_k1
+                    else:
+                        m_l = area2[k] / (rho_k * rho_k1 * rho_l)
+                        m_k = np.sin(max(beta, 0.0)) / rho_k
+                        m_k1 = np.sin(alpha) / rho_k1
+                    if pass_ == 0 and (m_l < 0 or m_k < 0 or m_k1 < 0):
+                        n_clip += 1
+                    m_l = max(m_l, 0.0)
+                    m_k = max(m_k, 0.0)
+                    m_k1 = max(m_k1, 0.0)
+                    tot = m_l + m_k + m_k1
+                    # the same summation order as a bincount over [mu_l..., mu_k..., mu_k1...]
+                    if pass_ == 0:
+                        w[l] += (m_l / tot) / d
+                    elif pass_ == 1:
+                        w[k] += (m_k / tot) / d
+                    else:
+                        w[(k + 1) % d] += (m_k1 / tot) / d
+        elif kind == 2:  # mean value: tan(theta/2) = |a x b| / (|a||b| + a.b)
+            rs = 0.0
+            for r in range(d):
+                th = area2[r] / (rho[r] * rho_next[r] + dot[r])
+                rp = (r - 1) % d
+                thp = area2[rp] / (rho[rp] * rho_next[rp] + dot[rp])
+                w[r] = (th + thp) / rho[r]
+                rs += w[r]
+            for r in range(d):
+                w[r] = w[r] / rs
+        else:  # cotangent
+            rs = 0.0
+            for r in range(d):
+                cot_t = (rho_next[r] * rho_next[r] - dot[r]) / area2[r]
+                rp = (r - 1) % d
+                cot_s = (rho[rp] * rho[rp] - dot[rp]) / area2[rp]
+                w[r] = 0.5 * (cot_t + cot_s)
+                rs += w[r]
+            if not rs > 0:
+                if err == _OK:
+                    err = _COT_ROW
+                    err_a = v
+                continue
+            for r in range(d):
+                w[r] = w[r] / rs
+        for r in range(d):
+            if not np.isfinite(w[r]) and err == _OK:
+                err = _NONFINITE
+                err_a = v
+                err_b = spoke[order[r]]
+            data[order[r]] = w[r]
+    if n_bad:
+        return indptr, spoke, data, _NOT_CYCLE, n_bad, -1, 0, 0
+    return indptr, spoke, data, err, err_a, err_b, fallbacks, n_clip
 
 
 def interior_weights(V: np.ndarray, F: np.ndarray, boundary_mask: np.ndarray, kind: str = "geodesic"):
@@ -304,49 +339,40 @@ def interior_weights(V: np.ndarray, F: np.ndarray, boundary_mask: np.ndarray, ki
         raise ParameterizationError(
             f"unknown weights {kind!r}: choose one of {', '.join(WEIGHT_KINDS)}"
         )
-    V = np.asarray(V, dtype=np.float64)
-    F = np.asarray(F, dtype=np.int64)
-    boundary_mask = np.asarray(boundary_mask, dtype=bool)
-    fan = _Fans(V, F, boundary_mask)
-    fallbacks = 0
-    if kind in ("geodesic", "floater"):
-        k, mu_l, mu_k, mu_k1, ok, neg = _barycentric_pairs(fan, scaled=(kind == "floater"))
-        if kind == "geodesic":
-            bad = ~ok
-            fallbacks = int(bad.sum())
-            if fallbacks:
-                k2, f_l, f_k, f_k1, _, neg2 = _barycentric_pairs(fan, scaled=True)
-                # same opposite wedge k: only the coordinates change
-                mu_l = np.where(bad, f_l, mu_l)
-                mu_k = np.where(bad, f_k, mu_k)
-                mu_k1 = np.where(bad, f_k1, mu_k1)
-                neg = np.where(bad, neg2, neg)
-        if np.any(neg):
-            log.info("%d (vertex, spoke) pairs had a scaled wedge wider than pi; coordinates clipped",
-                     int(neg.sum()))
-        w = _averaged(fan, k, mu_l, mu_k, mu_k1)
-    elif kind == "mean_value":
-        # tan(theta/2) = |a x b| / (|a||b| + a.b), per wedge (spoke k -> k+1)
-        th = fan.area2 / (fan.rho * fan.rho_next + fan.dot)
-        w = (th + th[fan.prev]) / fan.rho
-        w = w / np.bincount(fan.gid, weights=w)[fan.gid]
-    else:  # cotangent
-        # wedge k = face (v, s_k, s_k+1): angle at s_k+1 faces edge (v, s_k), angle at s_k faces (v, s_k+1)
-        # cot at s_k+1: (v - s_k+1).(s_k - s_k+1) / |cross| = (rho_next^2 - dot) / area2
-        cot_t = (fan.rho_next**2 - fan.dot) / fan.area2
-        cot_s = (fan.rho**2 - fan.dot) / fan.area2
-        w = 0.5 * (cot_t + cot_s[fan.prev])
-        rs = np.bincount(fan.gid, weights=w)
-        badrow = np.flatnonzero(~(rs > 0))
-        if len(badrow):
-            raise ParameterizationError(
-                f"cotangent weights of interior vertices {fan.verts[badrow[:10]].tolist()} sum to "
-                "zero or less (degenerate triangles): use geodesic, floater or mean_value weights"
-            )
-        w = w / rs[fan.gid]
-    if not np.all(np.isfinite(w)):
-        i = np.flatnonzero(~np.isfinite(w))[0]
+    V = np.ascontiguousarray(V, dtype=np.float64)
+    F = np.ascontiguousarray(F, dtype=np.int64)
+    boundary_mask = np.ascontiguousarray(boundary_mask, dtype=np.bool_)
+    n = V.shape[0]
+    indptr, cols, data, err, a, b, fallbacks, n_clip = _weights_kernel(V, F, boundary_mask, _KIND_CODE[kind])
+    if err == _DUP_EDGE:
         raise ParameterizationError(
-            f"non-finite {kind} weight at vertex {fan.vert[i]}, spoke {fan.spoke[i]} (degenerate triangles)"
+            f"edge ({a}, {b}) is used twice in the same direction: "
+            "the mesh is not consistently oriented or not manifold there"
         )
-    return fan.to_csr(w), fallbacks
+    if err == _OPEN_FAN:
+        raise ParameterizationError(
+            f"interior vertex {a} has an open fan (edge ({a}, {b}) has no "
+            "twin): the mesh is not a consistently oriented manifold there"
+        )
+    if err == _NOT_CYCLE:
+        raise ParameterizationError(
+            f"{a} interior vertices have fans that are not one closed cycle of faces "
+            "(non-manifold vertex or inconsistent orientation)"
+        )
+    if err == _ZERO_EDGE:
+        raise ParameterizationError(f"zero-length edge ({a}, {b}): duplicate vertices")
+    if err == _COT_ROW:
+        rs_bad = _cotangent_bad_rows(indptr, data, boundary_mask, V, F)
+        raise ParameterizationError(
+            f"cotangent weights of interior vertices {rs_bad} sum to "
+            "zero or less (degenerate triangles): use geodesic, floater or mean_value weights"
+        )
+    if err == _NONFINITE:
+        raise ParameterizationError(
+            f"non-finite {kind} weight at vertex {a}, spoke {b} (degenerate triangles)"
+        )
+    if n_clip:
+        log.info("%d (vertex, spoke) pairs had a scaled wedge wider than pi; coordinates clipped", int(n_clip))
+    W = sp.csr_matrix((data, cols, indptr), shape=(n, n))
+    W.has_sorted_indices = True
+    return W, int(fallbacks) if kind == "geodesic" else 0

@@ -1,0 +1,90 @@
+"""``conformill plan`` end to end: every output, the independent check, rs274, bad values."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import pytest
+import trimesh
+
+from conformill.cli.main import main
+from conformill.mesh import synthetic
+
+
+@pytest.fixture(scope="module")
+def part(tmp_path_factory):
+    m = synthetic.freeform_patch(spacing=2.0)
+    p = tmp_path_factory.mktemp("part") / "patch.ply"
+    trimesh.Trimesh(m.V, m.F, process=False).export(p)
+    return p
+
+
+@pytest.mark.parametrize("pattern", ["zigzag", "contour", "spiral"])
+def test_plan_all_outputs_verified(part, tmp_path, pattern, capsys):
+    out = tmp_path / "p.nc"
+    rc = main(["plan", str(part), "--pattern", pattern, "--tool-radius", "4", "--scallop", "0.5",
+               "--tolerance", "0.01", "-o", str(out), "--report", str(tmp_path / "r.json"),
+               "--plot", str(tmp_path / "p.png"), "--html", str(tmp_path / "v.html"), "--verify",
+               "--verify-samples", "60000"])
+    text = capsys.readouterr().out
+    assert rc == 0, text
+    rep = json.loads((tmp_path / "r.json").read_text())
+    v = rep["verify"]
+    # the independent simulation of the written program meets the job (issue 3's criteria)
+    assert v["pass"] and v["failures"] == []
+    assert v["scallop"]["p999"] <= 1.05 * 0.5
+    assert v["uncut_fraction"] == 0.0
+    assert v["gouge_max"] <= 0.01
+    assert v["rapid_min_clearance"] >= 0.5
+    if pattern == "spiral":
+        assert rep["program"]["passes"] == 1
+    assert "verify" in rep["timings_s"] and rep["peak_rss_mb"] > 0
+    html = (tmp_path / "v.html").read_text()
+    assert "<canvas" in html or "three" in html.lower()
+    assert (tmp_path / "p.png").stat().st_size > 10_000
+    assert "PASS" in text
+
+
+def test_plan_is_deterministic(part, tmp_path):
+    a, b = tmp_path / "a.nc", tmp_path / "b.nc"
+    for o in (a, b):
+        assert main(["plan", str(part), "--pattern", "zigzag", "--tool-radius", "4", "--scallop", "1",
+                     "-o", str(o), "-q"]) == 0
+    assert a.read_bytes() == b.read_bytes()
+
+
+@pytest.mark.skipif(shutil.which("rs274") is None, reason="rs274 (linuxcnc-uspace) is not installed")
+@pytest.mark.parametrize("pattern", ["zigzag", "contour", "spiral"])
+def test_plan_programs_run_in_linuxcnc(part, tmp_path, pattern):
+    from test_gcode_rs274 import _assert_clean, run_rs274
+
+    out = tmp_path / "p.nc"
+    assert main(["plan", str(part), "--pattern", pattern, "--tool-radius", "4", "--scallop", "0.3",
+                 "-o", str(out), "-q"]) == 0
+    rc, msg, canon = run_rs274(None, tmp_path, name="p")
+    _assert_clean(rc, msg)
+    assert canon.count("STRAIGHT_FEED") > 100
+
+
+@pytest.mark.parametrize("args, code, word", [
+    (["--tool-radius", "4", "--scallop", "4"], 3, "scallop"),
+    (["--tool-radius", "4", "--scallop", "5"], 3, "scallop"),
+    (["--tool-radius", "0", "--scallop", "0.1"], 3, "radius"),
+    (["--tool-radius", "-1", "--scallop", "0.1"], 3, "radius"),
+    (["--tool-radius", "4", "--scallop", "0.1", "--tolerance", "0"], 3, "tolerance"),
+    (["--tool-radius", "4", "--scallop", "-0.1"], 3, "scallop"),
+    (["--tool-radius", "4", "--scallop", "0.1", "--verify", "--verify-samples", "0"], 3, "samples"),
+])
+def test_bad_values_exit_without_output(part, tmp_path, capsys, args, code, word):
+    out = tmp_path / "p.nc"
+    rc = main(["plan", str(part), "-o", str(out), "--report", str(tmp_path / "r.json"), *args])
+    err = capsys.readouterr().err
+    assert rc == code
+    assert word in err.lower() and "Traceback" not in err and len(err.strip().splitlines()) == 1
+    assert not out.exists() and not (tmp_path / "r.json").exists()
+
+
+def test_missing_output_folder(part, tmp_path, capsys):
+    rc = main(["plan", str(part), "--tool-radius", "4", "--scallop", "0.1", "-o", str(tmp_path / "no" / "p.nc")])
+    assert rc == 2 and "does not exist" in capsys.readouterr().err

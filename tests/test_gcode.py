@@ -211,3 +211,15 @@ class TestErrors:
             format_gcode(ToolPath(passes=[P], safe_z=5.0), feed=100)
         with pytest.raises(PlanningError, match="safe_z must be finite"):
             format_gcode(ToolPath(passes=[np.zeros((2, 3))], safe_z=float("inf")), feed=100)
+
+
+def test_compiled_formatter_matches_reference():
+    from conformill.output.gcode import _format_moves, _num
+
+    rng = np.random.default_rng(7)
+    Q = np.concatenate([rng.integers(-10**9, 10**9, (500, 3)), [[0, -1, 1], [-9999, 10000, -10000], [5, 0, 0]]])
+    C = rng.random(Q.shape) < 0.7
+    C[-3:] = True
+    ref = "\n".join(" ".join(["G1"] + [ax + _num(int(v)) for ax, v, on in zip("XYZ", q, c) if on])
+                    for q, c in zip(Q, C))
+    assert _format_moves(Q, C) == ref

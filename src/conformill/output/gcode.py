@@ -34,6 +34,7 @@ import re
 import unicodedata
 
 import numpy as np
+from numba import njit
 
 from conformill.errors import OutputError, PlanningError
 from conformill.output.atomic import atomic_path
@@ -132,6 +133,60 @@ def _num(t: int) -> str:
     return f"{sign}{q}.{r:0{DECIMALS}d}"
 
 
+@njit(cache=True)
+def _put_num(t, out, pos):
+    """Write ``_num(t)`` as ASCII into ``out[pos:]``; return the new position."""
+    if t < 0:
+        out[pos] = 45  # '-'
+        pos += 1
+        t = -t
+    q = t // 10000
+    r = t - q * 10000
+    nd = 1
+    x = q
+    while x >= 10:
+        x //= 10
+        nd += 1
+    for i in range(nd - 1, -1, -1):
+        out[pos + i] = 48 + q % 10
+        q //= 10
+    pos += nd
+    out[pos] = 46  # '.'
+    for i in range(4, 0, -1):
+        out[pos + i] = 48 + r % 10
+        r //= 10
+    return pos + 5
+
+
+@njit(cache=True)
+def _format_moves_nb(Q, C):
+    k = Q.shape[0]
+    out = np.empty(k * 84, dtype=np.uint8)
+    pos = 0
+    for i in range(k):
+        if i > 0:
+            out[pos] = 10
+            pos += 1
+        out[pos] = 71  # 'G'
+        out[pos + 1] = 49  # '1'
+        pos += 2
+        for a in range(3):
+            if C[i, a]:
+                out[pos] = 32
+                out[pos + 1] = 88 + a  # 'X', 'Y', 'Z'
+                pos = _put_num(Q[i, a], out, pos + 2)
+    return out[:pos]
+
+
+def _format_moves(Q: np.ndarray, C: np.ndarray) -> str:
+    """``G1`` lines (joined by newlines) with the changed axes of ``Q`` (ticks) as ``_num``.
+
+    Written for ``DECIMALS == 4`` (``_put_num``); ``tests/test_gcode.py`` compares it with
+    ``_num``.
+    """
+    return _format_moves_nb(Q.astype(np.int64), C.astype(np.bool_)).tobytes().decode("ascii")
+
+
 def _ticks(a) -> np.ndarray:
     """Coordinates rounded to integer multiples of 1e-4 mm (half to even)."""
     return np.rint(np.asarray(a, dtype=np.float64) * _SCALE).astype(np.int64)
@@ -198,6 +253,7 @@ def _program(toolpath, feed, plunge_feed, spindle, header):
     feed_len = plunge_len = rapid_len = 0.0
     cut_points = cut_moves = 0
     prev_xy = None  # tool XY after the last retract (ticks)
+    n_lines = 0  # lines inside the bulk blocks beyond one per ``lines`` entry
     for ip, P in enumerate(passes):
         P = np.asarray(P, dtype=np.float64)
         if P.ndim != 2 or P.shape[1] != 3 or P.shape[0] == 0:
@@ -231,20 +287,17 @@ def _program(toolpath, feed, plunge_feed, spindle, header):
             seg = (Qm - prev) / _SCALE
             feed_len += float(np.sqrt((seg * seg).sum(axis=1)).sum())
             cut_moves += len(Qm)
-            first = True
-            for q, c in zip(Qm.tolist(), ch.tolist()):
-                words = ["G1"]
-                if c[0]:
-                    words.append("X" + _num(q[0]))
-                if c[1]:
-                    words.append("Y" + _num(q[1]))
-                if c[2]:
-                    words.append("Z" + _num(q[2]))
-                if first and cur_f != fw_feed:
+            if len(Qm):
+                q, c = Qm[0].tolist(), ch[0].tolist()
+                words = ["G1"] + [ax + _num(v) for ax, v, on in zip("XYZ", q, c) if on]
+                if cur_f != fw_feed:
                     words.append(fw_feed)
                     cur_f = fw_feed
-                first = False
                 lines.append(" ".join(words))
+            if len(Qm) > 1:  # the bulk of the program: formatted in compiled code
+                block = _format_moves(np.ascontiguousarray(Qm[1:]), np.ascontiguousarray(ch[1:]))
+                lines.append(block)
+                n_lines += len(Qm) - 2  # one entry of ``lines`` holding len(Qm) - 1 lines
             last = Qm[-1] if len(Qm) else Q[0]
         else:
             last = Q[0]
@@ -253,6 +306,7 @@ def _program(toolpath, feed, plunge_feed, spindle, header):
         prev_xy = (int(last[0]), int(last[1]))
     lines.append("M5")
     lines.append("M30")
+    n_lines += len(lines)
     text = "\n".join(lines) + "\n"
     time_min = feed_len / feed + plunge_len / plunge
     stats = {
@@ -263,6 +317,6 @@ def _program(toolpath, feed, plunge_feed, spindle, header):
         "plunge_length_mm": plunge_len,
         "rapid_length_mm": rapid_len,
         "machining_time_min": time_min,
-        "n_lines": len(lines),
+        "n_lines": n_lines,
     }
     return text, stats

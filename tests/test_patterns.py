@@ -57,3 +57,18 @@ def test_boundary_polygon_limit_on_regular_polygon():
     Q = poly.clip(P)
     np.testing.assert_allclose(Q[0], [R, 0.0], atol=1e-12)
     np.testing.assert_allclose(Q[1], [0.5, 0.5])
+
+
+def test_curve_distance_matches_kdtree_reference_and_never_underestimates():
+    from conformill.patterns.family import curve_distance
+
+    rng = np.random.default_rng(3)
+    for closed in (False, True):
+        t = np.sort(rng.random(900)) * 2 * np.pi
+        Q = np.column_stack([30 * np.cos(t), 30 * np.sin(t), 2 * np.sin(3 * t)])
+        t2 = np.sort(rng.random(700)) * 2 * np.pi
+        P = np.column_stack([31 * np.cos(t2), 31 * np.sin(t2), 2 * np.sin(3 * t2) + 0.2])
+        ref = point_polyline_distance(P, Q, closed)
+        got = curve_distance(P, Q, closed)
+        assert np.all(got >= ref - 1e-12)
+        assert np.allclose(got, ref, atol=1e-9)

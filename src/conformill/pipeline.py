@@ -313,7 +313,9 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
             ok = np.isfinite(centres[:, 2])
             centres = centres[ok]
             lifts.append(lift[ok])
-            centres = cutter.refine(centres, 0.5 * e)
+            # the centre path may dip at most e / 2 below the safe (drop) surface: half of
+            # the gouge budget e, the other half left to the mesh facets between samples
+            centres = cutter.refine(centres, e)
             # drop consecutive duplicates (a centre point path, link ends)
             keep = np.ones(len(centres), dtype=bool)
             keep[1:] = np.any(np.abs(np.diff(centres, axis=0)) > 1e-9, axis=1)

@@ -15,6 +15,7 @@ from __future__ import annotations
 import logging
 
 import numpy as np
+from numba import njit
 from scipy.spatial import cKDTree
 
 from conformill.errors import PlanningError
@@ -23,8 +24,76 @@ from conformill.planning.steps import side_interval
 log = logging.getLogger(__name__)
 
 
+@njit(cache=True)
+def _seg_d2(px, py, pz, Q, a, b):
+    ax, ay, az = Q[a, 0], Q[a, 1], Q[a, 2]
+    ux, uy, uz = Q[b, 0] - ax, Q[b, 1] - ay, Q[b, 2] - az
+    wx, wy, wz = px - ax, py - ay, pz - az
+    uu = ux * ux + uy * uy + uz * uz
+    t = 0.0
+    if uu > 1e-300:
+        t = min(max((wx * ux + wy * uy + wz * uz) / uu, 0.0), 1.0)
+    dx, dy, dz = wx - t * ux, wy - t * uy, wz - t * uz
+    return dx * dx + dy * dy + dz * dz
+
+
+@njit(cache=True)
+def _walk_distance(P, Q, closed, window):
+    k, q = P.shape[0], Q.shape[0]
+    out = np.empty(k)
+    j = 0
+    best = np.inf
+    for m in range(q):  # the first point: exhaustive
+        d = (P[0, 0] - Q[m, 0]) ** 2 + (P[0, 1] - Q[m, 1]) ** 2 + (P[0, 2] - Q[m, 2]) ** 2
+        if d < best:
+            best, j = d, m
+    for i in range(k):
+        px, py, pz = P[i, 0], P[i, 1], P[i, 2]
+        # walk along Q from the previous nearest vertex, then look a window around it
+        best = (px - Q[j, 0]) ** 2 + (py - Q[j, 1]) ** 2 + (pz - Q[j, 2]) ** 2
+        moved = True
+        while moved:
+            moved = False
+            for step in (-1, 1):
+                m = j + step
+                if closed:
+                    m %= q
+                elif m < 0 or m >= q:
+                    continue
+                d = (px - Q[m, 0]) ** 2 + (py - Q[m, 1]) ** 2 + (pz - Q[m, 2]) ** 2
+                if d < best:
+                    best, j, moved = d, m, True
+        c = j
+        for off in range(-window, window + 1):
+            m = c + off
+            if closed:
+                m %= q
+            elif m < 0 or m >= q:
+                continue
+            d = (px - Q[m, 0]) ** 2 + (py - Q[m, 1]) ** 2 + (pz - Q[m, 2]) ** 2
+            if d < best:
+                best, j = d, m
+        # the segments around the window's vertices
+        dmin = best
+        for off in range(-window, window + 1):
+            a = j + off
+            b = a + 1
+            if closed:
+                a %= q
+                b %= q
+            elif a < 0 or b >= q:
+                continue
+            d = _seg_d2(px, py, pz, Q, a, b)
+            if d < dmin:
+                dmin = d
+        out[i] = np.sqrt(dmin)
+    return out
+
+
 def point_polyline_distance(P: np.ndarray, Q: np.ndarray, closed: bool = False) -> np.ndarray:
-    """Distance from each point of ``P (k, 3)`` to the polyline ``Q (q, 3)``.
+    """Distance from each point of ``P (k, 3)`` to the polyline ``Q (q, 3)`` (kd-tree).
+
+    Reference implementation; the planner uses :func:`curve_distance`.
 
     The nearest vertex of ``Q`` is found with a k-d tree; the two segments around it are
     then measured exactly (exact whenever the nearest segment touches the nearest vertex,
@@ -49,6 +118,33 @@ def point_polyline_distance(P: np.ndarray, Q: np.ndarray, closed: bool = False) 
         d = np.linalg.norm(P - (a + t[:, None] * ab), axis=1)
         best = np.where(ok, np.minimum(best, d), best)
     return best
+
+
+def curve_distance(P: np.ndarray, Q: np.ndarray, closed: bool = False, window: int = 3) -> np.ndarray:
+    """Distance from each point of curve ``P (k, 3)`` to the polyline ``Q (q, 3)``.
+
+    For two neighbouring curves of a family, sampled in the same direction: the nearest
+    vertex of ``Q`` is followed along ``P`` by a local walk plus a window of ``window``
+    vertices either side, then the segments around it are measured exactly. A local
+    minimum can only make a distance *larger* than the true one, which makes the 3D
+    spacing check stricter, never looser. Compiled; about 5x faster than building and
+    querying a k-d tree per curve pair (4000-point rings).
+    """
+    P = np.ascontiguousarray(P, dtype=np.float64)
+    Q = np.ascontiguousarray(Q, dtype=np.float64)
+    if len(Q) == 1:
+        return np.linalg.norm(P - Q[0], axis=1)
+    return _walk_distance(P, Q, bool(closed), int(window))
+
+
+def exact_where_over(d: np.ndarray, limit: np.ndarray, P: np.ndarray, Q: np.ndarray, closed: bool) -> np.ndarray:
+    """``d`` with the entries above ``limit`` recomputed exactly (k-d tree)."""
+    over = np.flatnonzero(d > limit * (1.0 + 1e-9))
+    if over.size == 0:
+        return d
+    d = d.copy()
+    d[over] = point_polyline_distance(P[over], Q, closed)
+    return d
 
 
 class Curve:
@@ -111,8 +207,11 @@ class Planner:
             if long_.size == 0:
                 break
             k = np.ceil(seg[long_] / self.seg_len).astype(np.int64)
-            extra = [tau[i] + (tau[i + 1] - tau[i]) * np.arange(1, m) / m for i, m in zip(long_, k)]
-            tau = np.sort(np.concatenate([tau] + extra))
+            owner = np.repeat(long_, k - 1)  # m - 1 new parameters inside each long gap
+            m = np.repeat(k, k - 1)
+            j = np.arange(owner.size) - np.repeat(np.cumsum(k - 1) - (k - 1), k - 1) + 1
+            extra = tau[owner] + (tau[owner + 1] - tau[owner]) * (j / m)
+            tau = np.sort(np.concatenate([tau, extra]))
         P, t = family.along(s, tau)
         S = self.surface.sample(P)
         kappa = S.curvature(S.across(t))
@@ -158,9 +257,13 @@ class Planner:
             for _ in range(12):
                 s_next = min(cur.s + step, s_max)
                 nxt = self.evaluate(family, s_next)
-                d_fwd = point_polyline_distance(cur.sample.xyz, nxt.sample.xyz, family.closed)
-                d_bwd = point_polyline_distance(nxt.sample.xyz, cur.sample.xyz, family.closed)
+                d_fwd = curve_distance(cur.sample.xyz, nxt.sample.xyz, family.closed)
+                d_bwd = curve_distance(nxt.sample.xyz, cur.sample.xyz, family.closed)
                 ratio = max(np.max(d_fwd / cur.ls), np.max(d_bwd / nxt.ls))
+                if ratio > 1.0 + 1e-9:  # the walk may overestimate: decide on exact distances
+                    d_fwd = exact_where_over(d_fwd, cur.ls, cur.sample.xyz, nxt.sample.xyz, family.closed)
+                    d_bwd = exact_where_over(d_bwd, nxt.ls, nxt.sample.xyz, cur.sample.xyz, family.closed)
+                    ratio = max(np.max(d_fwd / cur.ls), np.max(d_bwd / nxt.ls))
                 if ratio <= 1.0 + 1e-9:
                     break
                 shrinks += 1

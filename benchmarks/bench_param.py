@@ -10,6 +10,11 @@ Runs, each in a fresh subprocess (so peak RSS is per process, from ``os.wait4``)
 
 Target: conformill's whole process <= igl's harmonic call alone; peak RSS < 4 GB.
 
+The two are interleaved and the best of ``--repeat`` runs of each is compared; the machine's
+load average is printed before and after, since other processes on a 2-core machine slow the
+multithreaded Pardiso factorization more than igl's single-threaded solve. The stage timings
+are the median over the conformill runs.
+
     python benchmarks/bench_param.py [MESH] [--scale 1400] [--repeat 3]
 """
 
@@ -67,24 +72,31 @@ def main(argv=None):
                   "-o", obj, "--report", rep]
         igl_cmd = [sys.executable, "-c", IGL_CHILD, args.mesh, str(args.scale)]
         run_child(cm_cmd)  # warm numba's cache and the OS file cache
-        cm, igl_wall, igl_h = [], [], []
+        load0 = os.getloadavg()
+        cm, igl_wall, igl_h, stage_runs = [], [], [], []
+        import json
+
         for _ in range(args.repeat):  # interleaved, so background load hits both alike
             w, rss_cm, out = run_child(cm_cmd)
             cm.append((w, rss_cm))
+            stage_runs.append(json.loads(Path(rep).read_text())["timings_s"])
             w, rss_igl, out_igl = run_child(igl_cmd)
             h = float(out_igl.split("HARMONIC")[1].split()[0])
             igl_wall.append((w, rss_igl))
             igl_h.append(h)
-        import json
+        load1 = os.getloadavg()
+    import statistics
 
-        stages = json.loads(Path(rep).read_text())["timings_s"]
+    stages = {k: statistics.median(r[k] for r in stage_runs) for k in stage_runs[0]}
     best_cm = min(cm)
     best_igl = min(igl_wall)
     best_h = min(igl_h)
-    print(f"mesh {Path(args.mesh).name} (scale {args.scale}), best of {args.repeat}")
+    print(f"mesh {Path(args.mesh).name} (scale {args.scale}), best of {args.repeat}; load average "
+          f"{load0[0]:.2f} before, {load1[0]:.2f} after ({os.cpu_count()} CPUs)")
     print(f"conformill param (whole process)   {best_cm[0]:7.2f} s  peak RSS {max(r for _, r in cm):7.0f} MB"
           f"   all: {', '.join(f'{w:.2f}' for w, _ in cm)}")
-    print("  stages of the last run: " + ", ".join(f"{k} {v:.2f}" for k, v in stages.items()))
+    print("  stages (median, s): " + ", ".join(f"{k} {v:.2f}" for k, v in stages.items())
+          + f"; outside the stages (start-up, imports, exit): {statistics.median(w for w, _ in cm) - stages['total']:.2f}")
     print(f"igl.harmonic call alone            {best_h:7.2f} s"
           f"   all: {', '.join(f'{h:.2f}' for h in igl_h)}")
     print(f"igl subprocess (read + harmonic)   {best_igl[0]:7.2f} s  peak RSS {max(r for _, r in igl_wall):7.0f} MB")

@@ -331,8 +331,8 @@ def _ply_ascii(data: bytes, pos: int, elements, name: str):
         except ValueError:
             bad = next(x for x in chunk if not _is_number(x))
             raise MeshError(f"{name}: cannot read as PLY: {el} data: not a number: {_one_line(bad.decode('latin-1'), 40)!r}") from None
-        if el == "vertex":
-            rec = {p: arr[:, i] for i, (p, _) in enumerate(props)}
+        if el == "vertex":  # values rounded to the declared type, as a binary file would be
+            rec = {p: arr[:, i].astype(tp).astype(np.float64) for i, (p, tp) in enumerate(props)}
             V = _ply_xyz(rec, props, name)
         else:
             if count and not np.all(arr[:, li] == 3):

@@ -8,18 +8,20 @@ loops meet, and a flipped face also breaks the boundary walk, so the local defec
 (indices, degenerate faces, non-manifold edges and vertices, orientation) are checked
 before the global counts (components, boundary loops, Euler characteristic).
 
-Everything is vectorized around one sort of the ``3m`` half-edge keys plus two sparse
-connected-component labellings (corner fans, vertex components).
+A valid disk is confirmed by one linear-time numba pass
+(:func:`conformill.mesh.topology.disk_summary` plus a degenerate-face scan); only when that
+pass finds something wrong does the diagnosis run, vectorized around one sort of the ``3m``
+half-edge keys plus two sparse connected-component labellings (corner fans, vertex
+components), to name the defect and where it is.
 """
 
 from __future__ import annotations
 
 import numpy as np
-import scipy.sparse as sp
-from scipy.sparse.csgraph import connected_components
+from numba import njit
 
 from conformill.errors import MeshError
-from conformill.mesh.topology import half_edges, loops_from_half_edges
+from conformill.mesh.topology import disk_summary, half_edges, loops_from_half_edges
 from conformill.types import Mesh
 
 #: a face is degenerate when twice its area is below this times the squared bounding-box
@@ -126,6 +128,47 @@ def degenerate_faces(V: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, np.ndarr
     return np.flatnonzero(repeated), np.flatnonzero(zero)
 
 
+@njit(cache=True)
+def _n_suspect_faces(V, F, area2_min):
+    """Faces with a repeated index or ``|(b - a) x (c - a)| <= area2_min`` (numba)."""
+    bad = 0
+    for f in range(F.shape[0]):
+        i0 = F[f, 0]
+        i1 = F[f, 1]
+        i2 = F[f, 2]
+        if i0 == i1 or i1 == i2 or i2 == i0:
+            bad += 1
+            continue
+        e1x = V[i1, 0] - V[i0, 0]
+        e1y = V[i1, 1] - V[i0, 1]
+        e1z = V[i1, 2] - V[i0, 2]
+        e2x = V[i2, 0] - V[i0, 0]
+        e2y = V[i2, 1] - V[i0, 1]
+        e2z = V[i2, 2] - V[i0, 2]
+        cx = e1y * e2z - e1z * e2y
+        cy = e1z * e2x - e1x * e2z
+        cz = e1x * e2y - e1y * e2x
+        if not np.sqrt(cx * cx + cy * cy + cz * cz) > area2_min:
+            bad += 1
+    return bad
+
+
+def is_clean_disk(V: np.ndarray, F: np.ndarray) -> bool:
+    """Fast check (linear time, numba) that checked arrays form a valid disk.
+
+    True when no face is degenerate (with a 2x margin on :data:`DEGENERATE_AREA_REL`, so
+    that borderline faces go to the exact check), every edge is manifold and consistently
+    oriented, every vertex has one fan, and there is one component, one boundary loop and
+    Euler characteristic 1. False means :func:`validate_disk` must look closer.
+    """
+    diag2 = float(np.sum((V.max(axis=0) - V.min(axis=0)) ** 2))
+    if _n_suspect_faces(V, F, 2.0 * DEGENERATE_AREA_REL * diag2):
+        return False
+    s = disk_summary(F, len(V))
+    return (s["bad_edges"] == 0 and s["bad_vertices"] == 0 and s["components"] == 1
+            and s["boundary_loops"] == 1 and s["euler"] == 1)
+
+
 def _edge_pairs(he: np.ndarray, n: int):
     """Group the half-edges by undirected edge with one sort.
 
@@ -165,6 +208,9 @@ def _fans_per_vertex(F: np.ndarray, he: np.ndarray, a: np.ndarray, b: np.ndarray
     -------
     (n,) int64
     """
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+
     m3 = 3 * len(F)
     nxt = lambda h: 3 * (h // 3) + (h % 3 + 1) % 3  # noqa: E731
     same_dir = he[a, 0] == he[b, 0]
@@ -209,6 +255,11 @@ def validate_disk(mesh: Mesh) -> None:
     """
     where = _where(mesh)
     V, F = check_arrays(mesh)
+    if is_clean_disk(np.ascontiguousarray(V), np.ascontiguousarray(F)):
+        return
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+
     n, m = len(V), len(F)
 
     repeated, zero = degenerate_faces(V, F)

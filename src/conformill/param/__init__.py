@@ -17,7 +17,7 @@ from conformill.mesh.topology import boundary_loops
 from conformill.param.boundary import auto_corners, boundary_turning, circle_map, rectangle_map
 from conformill.param.quality import quality
 from conformill.param.solve import solve_interior
-from conformill.param.weights import WEIGHT_KINDS, corner_angles, interior_weights
+from conformill.param.weights import WEIGHT_KINDS, corner_angles, interior_weights, weights_csr
 from conformill.types import Mesh, Parameterization, Quality
 
 BOUNDARY_KINDS = ("circle", "rectangle")
@@ -93,7 +93,7 @@ def parameterize(mesh: Mesh, boundary: str = "circle", weights: str = "geodesic"
     timings["boundary"] = t1 - t0
     mask = np.zeros(n, dtype=bool)
     mask[loop] = True
-    W, fallbacks = interior_weights(V, F, mask, weights)
+    W, fallbacks = weights_csr(V, F, mask, weights)
     t2 = time.perf_counter()
     timings["weights"] = t2 - t1
     uv, residual, solver_used = solve_interior(W, loop, uv_b, solver)

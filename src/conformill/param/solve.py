@@ -25,8 +25,7 @@ import logging
 import os
 
 import numpy as np
-import scipy.sparse as sp
-import scipy.sparse.linalg as spla
+from numba import njit
 
 from conformill.errors import ParameterizationError
 
@@ -101,24 +100,56 @@ def _mkl_pardiso():
     init = lib.pardisoinit
     init.restype = None
     init.argtypes = [ctypes.c_void_p] * 3
-    _MKL.append((fn, init))
+    threads = lib.MKL_Set_Num_Threads_Local
+    threads.restype = ctypes.c_int
+    threads.argtypes = [ctypes.c_int]
+    _MKL.append((fn, init, threads))
     return _MKL[0]
+
+
+def _busy_cpus() -> int:
+    """Runnable tasks on the machine other than this one, right now (Linux ``/proc/loadavg``)."""
+    try:
+        with open("/proc/loadavg") as fh:
+            running = int(fh.read().split()[3].split("/")[0])
+    except (OSError, ValueError, IndexError):
+        return 0
+    return max(running - 1, 0)
+
+
+def pardiso_threads() -> int | None:
+    """Threads for Pardiso: the CPUs this process may use minus those busy right now.
+
+    MKL's OpenMP threads meet at barriers many times per factorization; when one of them has
+    to share its core with another process, all of them wait, and two threads on one free
+    core run about twice as slow as one thread. ``None`` (MKL decides) when
+    ``MKL_NUM_THREADS`` or ``OMP_NUM_THREADS`` is set, or off Linux.
+    """
+    if os.environ.get("MKL_NUM_THREADS") or os.environ.get("OMP_NUM_THREADS"):
+        return None
+    try:
+        ncpu = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return None
+    return max(1, ncpu - _busy_cpus())
 
 
 class _Pardiso:
     """Minimal MKL Pardiso driver (real, non-symmetric ``mtype 11``), zero-based CSR input.
 
-    One analysis + factorization (phase 12), any number of solves (phase 33, all right-hand
-    sides at once), then :meth:`free`. The matrix arrays are held until then, as MKL requires.
+    One analysis + factorization (phase 12), **one** solve (phase 33, all right-hand sides at
+    once), then :meth:`free`. One solve only: with the two-level factorization of
+    :data:`PARDISO_FAST` (``iparm[24] = 1``), MKL 2026 returns wrong answers when a later
+    solve has fewer right-hand sides than an earlier one. The matrix arrays are held until then, as MKL requires.
     pypardiso does the same but copies and hashes the matrix, shifts the indices to one-based on
     every call and costs most of a second to import.
     """
 
-    def __init__(self, A: sp.csr_matrix, iparm: dict):
+    def __init__(self, A: CSR, iparm: dict):
         import ctypes
 
         self._ct = ctypes
-        self.fn, init = _mkl_pardiso()
+        self.fn, init, self._threads = _mkl_pardiso()
         self.n = A.shape[0]
         self.data = np.ascontiguousarray(A.data, dtype=np.float64)
         self.ia = np.ascontiguousarray(A.indptr, dtype=np.int32)
@@ -134,6 +165,7 @@ class _Pardiso:
         self.iparm[0] = 1  # iparm given
         self.iparm[34] = 1  # zero-based indexing
         self.active = False
+        self.solved = False
 
     def _call(self, phase: int, b: np.ndarray | None = None, x: np.ndarray | None = None) -> None:
         ct = self._ct
@@ -150,9 +182,18 @@ class _Pardiso:
 
     def factorize(self) -> None:
         self.active = True
-        self._call(12)
+        nt = pardiso_threads()
+        old = self._threads(nt) if nt else None
+        try:
+            self._call(12)
+        finally:
+            if nt:
+                self._threads(old)
 
     def solve(self, rhs: np.ndarray) -> np.ndarray:
+        if self.solved or not self.active:
+            raise RuntimeError("_Pardiso: factorize, then solve once (all right-hand sides together)")
+        self.solved = True
         b = np.asfortranarray(rhs, dtype=np.float64)
         x = np.zeros_like(b, order="F")
         self._call(33, b, x)
@@ -175,45 +216,162 @@ def default_solver(n_unknowns: int | None = None) -> str:
     return "pardiso" if have_pardiso() else "superlu"
 
 
-def split_system(W: sp.csr_matrix, interior: np.ndarray, boundary: np.ndarray):
-    """``A = Id - W_II`` and ``W_IB`` from the full weight matrix.
+class CSR:
+    """A bare CSR matrix with sorted column indices: enough for Pardiso, ``@`` and the residual.
 
-    Parameters
-    ----------
-    W : (n, n) csr_matrix
-    interior : (nI,) int64
-    boundary : (nB,) int64
-
-    Returns
-    -------
-    A : (nI, nI) csr_matrix
-    WB : (nI, nB) csr_matrix
+    Importing scipy.sparse costs about half a second of the ``conformill param`` run, so
+    the parameterization passes these around and converts (:meth:`tocsr`) only for the scipy
+    solvers and the public functions that return scipy matrices.
     """
+
+    __slots__ = ("indptr", "indices", "data", "shape")
+    format = "csr"
+    has_sorted_indices = True
+
+    def __init__(self, indptr, indices, data, shape):
+        self.indptr = np.ascontiguousarray(indptr, dtype=np.int64)
+        self.indices = np.ascontiguousarray(indices, dtype=np.int64)
+        self.data = np.ascontiguousarray(data, dtype=np.float64)
+        self.shape = (int(shape[0]), int(shape[1]))
+
+    @property
+    def nnz(self) -> int:
+        return int(self.indptr[-1])
+
+    def __matmul__(self, X):
+        X = np.ascontiguousarray(X, dtype=np.float64)
+        Y = _spmm(self.indptr, self.indices, self.data, X.reshape(X.shape[0], -1))
+        return Y.reshape((self.shape[0],) + X.shape[1:])
+
+    def tocsr(self):
+        import scipy.sparse as sp
+
+        M = sp.csr_matrix((self.data, self.indices, self.indptr), shape=self.shape)
+        M.has_sorted_indices = True
+        return M
+
+    def tocsc(self):
+        return self.tocsr().tocsc()
+
+
+def _as_csr(W) -> CSR:
+    """A :class:`CSR` view of a scipy sparse matrix (sorted indices) or a :class:`CSR`."""
+    if isinstance(W, CSR):
+        return W
+    W = W.tocsr()
+    if not W.has_sorted_indices:
+        W = W.sorted_indices()
+    return CSR(W.indptr, W.indices, W.data, W.shape)
+
+
+@njit(cache=True)
+def _spmm(indptr, indices, data, X):
+    """``A @ X`` for CSR ``A`` and dense ``X (k, c)``, summed in index order like scipy."""
+    nr = indptr.shape[0] - 1
+    c = X.shape[1]
+    Y = np.zeros((nr, c))
+    for i in range(nr):
+        for p in range(indptr[i], indptr[i + 1]):
+            a = data[p]
+            j = indices[p]
+            for t in range(c):
+                Y[i, t] += a * X[j, t]
+    return Y
+
+
+@njit(cache=True)
+def _split_kernel(indptr, indices, data, interior, newidx, is_int):
+    """CSR arrays of ``A = Id - W_II`` and ``W_IB`` (columns sorted) for :func:`split_system`."""
+    nI = interior.shape[0]
+    a_ptr = np.zeros(nI + 1, dtype=np.int64)
+    b_ptr = np.zeros(nI + 1, dtype=np.int64)
+    for r in range(nI):
+        v = interior[r]
+        na = 1
+        nb = 0
+        for p in range(indptr[v], indptr[v + 1]):
+            if is_int[indices[p]]:
+                na += 1
+            else:
+                nb += 1
+        a_ptr[r + 1] = a_ptr[r] + na
+        b_ptr[r + 1] = b_ptr[r] + nb
+    a_ind = np.empty(a_ptr[nI], dtype=np.int64)
+    a_val = np.empty(a_ptr[nI])
+    b_ind = np.empty(b_ptr[nI], dtype=np.int64)
+    b_val = np.empty(b_ptr[nI])
+    for r in range(nI):
+        v = interior[r]
+        qa = a_ptr[r]
+        qb = b_ptr[r]
+        diag = False
+        for p in range(indptr[v], indptr[v + 1]):
+            j = indices[p]
+            if is_int[j]:
+                c = newidx[j]
+                if not diag and c > r:
+                    a_ind[qa] = r
+                    a_val[qa] = 1.0
+                    qa += 1
+                    diag = True
+                a_ind[qa] = c
+                a_val[qa] = -data[p]
+                qa += 1
+            else:
+                # boundary columns: insertion sort by position on the boundary
+                c = newidx[j]
+                x = data[p]
+                t = qb
+                while t > b_ptr[r] and b_ind[t - 1] > c:
+                    b_ind[t] = b_ind[t - 1]
+                    b_val[t] = b_val[t - 1]
+                    t -= 1
+                b_ind[t] = c
+                b_val[t] = x
+                qb += 1
+        if not diag:
+            a_ind[qa] = r
+            a_val[qa] = 1.0
+    return a_ptr, a_ind, a_val, b_ptr, b_ind, b_val
+
+
+def _split(W, interior: np.ndarray, boundary: np.ndarray):
+    """:func:`split_system` as two :class:`CSR` matrices."""
+    W = _as_csr(W)
     n = W.shape[0]
     nI = len(interior)
     newidx = np.empty(n, dtype=np.int64)
     newidx[interior] = np.arange(nI)
     newidx[boundary] = np.arange(len(boundary))
-    is_int = np.zeros(n, dtype=bool)
+    is_int = np.zeros(n, dtype=np.bool_)
     is_int[interior] = True
-    Wi = W[interior]
-    rows = np.repeat(np.arange(nI), np.diff(Wi.indptr))
-    cols = Wi.indices
-    ci = is_int[cols]
-    A = sp.csr_matrix(
-        (
-            np.concatenate([np.ones(nI), -Wi.data[ci]]),
-            (np.concatenate([np.arange(nI), rows[ci]]), np.concatenate([np.arange(nI), newidx[cols[ci]]])),
-        ),
-        shape=(nI, nI),
-    )
-    A.sum_duplicates()
-    cb = ~ci
-    WB = sp.csr_matrix((Wi.data[cb], (rows[cb], newidx[cols[cb]])), shape=(nI, len(boundary)))
-    return A, WB
+    a_ptr, a_ind, a_val, b_ptr, b_ind, b_val = _split_kernel(
+        W.indptr, W.indices, W.data, np.ascontiguousarray(interior, dtype=np.int64), newidx, is_int)
+    return CSR(a_ptr, a_ind, a_val, (nI, nI)), CSR(b_ptr, b_ind, b_val, (nI, len(boundary)))
 
 
-def solve_linear(A: sp.csr_matrix, rhs: np.ndarray, solver: str):
+def split_system(W, interior: np.ndarray, boundary: np.ndarray):
+    """``A = Id - W_II`` and ``W_IB`` from the full weight matrix.
+
+    Parameters
+    ----------
+    W : (n, n) csr_matrix (or :class:`CSR`)
+    interior : (nI,) int64
+        Increasing vertex ids.
+    boundary : (nB,) int64
+
+    Returns
+    -------
+    A : (nI, nI) csr_matrix
+        Columns sorted; the diagonal is 1.
+    WB : (nI, nB) csr_matrix
+        Columns (positions in ``boundary``) sorted.
+    """
+    A, WB = _split(W, interior, boundary)
+    return A.tocsr(), WB.tocsr()
+
+
+def solve_linear(A, rhs: np.ndarray, solver: str):
     """Solve ``A X = rhs`` for all columns of ``rhs`` with one factorization.
 
     Returns
@@ -221,9 +379,7 @@ def solve_linear(A: sp.csr_matrix, rhs: np.ndarray, solver: str):
     X : (nI, k) float64
     """
     if solver == "pardiso":
-        A = A.tocsr()
-        if not A.has_sorted_indices:
-            A.sort_indices()
+        A = _as_csr(A)
         if np.any(np.diff(A.indptr) == 0):
             raise ValueError("the matrix has an empty row (singular)")
         for iparm in (PARDISO_FAST, {}):
@@ -239,6 +395,10 @@ def solve_linear(A: sp.csr_matrix, rhs: np.ndarray, solver: str):
                 log.info("pardiso without scaling/matching missed the residual; retrying with defaults")
                 continue
             return X
+    if solver in ("superlu", "gmres_ilu"):
+        import scipy.sparse.linalg as spla
+
+        A = A.tocsr()
     if solver == "superlu":
         lu = spla.splu(A.tocsc(), permc_spec="COLAMD")
         return lu.solve(rhs)
@@ -255,12 +415,12 @@ def solve_linear(A: sp.csr_matrix, rhs: np.ndarray, solver: str):
     raise ParameterizationError(f"unknown solver {solver!r}: choose one of {', '.join(SOLVERS)}")
 
 
-def solve_interior(W: sp.csr_matrix, boundary: np.ndarray, uv_b: np.ndarray, solver: str | None = None):
+def solve_interior(W, boundary: np.ndarray, uv_b: np.ndarray, solver: str | None = None):
     """Positions of all vertices from the weights and the fixed boundary (METHOD section 1).
 
     Parameters
     ----------
-    W : (n, n) csr_matrix
+    W : (n, n) csr_matrix or CSR
         Interior rows sum to 1; boundary rows are ignored.
     boundary : (b,) int64
         Boundary vertex ids.
@@ -293,8 +453,8 @@ def solve_interior(W: sp.csr_matrix, boundary: np.ndarray, uv_b: np.ndarray, sol
     uv[boundary] = uv_b
     if len(interior) == 0:
         return uv, 0.0, solver
-    A, WB = split_system(W, interior, boundary)
-    rhs = np.ascontiguousarray(WB @ uv_b)
+    A, WB = _split(W, interior, boundary)
+    rhs = np.ascontiguousarray(WB @ np.ascontiguousarray(uv_b, dtype=np.float64))
     try:
         X = solve_linear(A, rhs, solver)
     except (RuntimeError, ValueError, np.linalg.LinAlgError) as exc:

@@ -1,0 +1,106 @@
+"""The sparse system: bare CSR, split, MKL Pardiso through ctypes (METHOD section 1)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from conformill.mesh import synthetic as syn
+from conformill.mesh.topology import boundary_loops
+from conformill.param import solve as S
+from conformill.param.boundary import circle_map
+from conformill.param.weights import interior_weights
+
+
+def _system(kind="geodesic"):
+    m = syn.freeform_patch(spacing=2.5)
+    loop = boundary_loops(m.F, m.n_vertices)[0]
+    mask = np.zeros(m.n_vertices, dtype=bool)
+    mask[loop] = True
+    W, _ = interior_weights(m.V, m.F, mask, kind)
+    uv_b, _ = circle_map(m.V, loop)
+    return W, np.flatnonzero(~mask), loop, uv_b
+
+
+def ref_split(W, interior, boundary):
+    """The previous scipy construction of A = Id - W_II and W_IB."""
+    n = W.shape[0]
+    nI = len(interior)
+    newidx = np.empty(n, dtype=np.int64)
+    newidx[interior] = np.arange(nI)
+    newidx[boundary] = np.arange(len(boundary))
+    is_int = np.zeros(n, dtype=bool)
+    is_int[interior] = True
+    Wi = W[interior]
+    rows = np.repeat(np.arange(nI), np.diff(Wi.indptr))
+    cols = Wi.indices
+    ci = is_int[cols]
+    A = sp.csr_matrix((np.concatenate([np.ones(nI), -Wi.data[ci]]),
+                       (np.concatenate([np.arange(nI), rows[ci]]), np.concatenate([np.arange(nI), newidx[cols[ci]]]))),
+                      shape=(nI, nI))
+    A.sum_duplicates()
+    cb = ~ci
+    WB = sp.csr_matrix((Wi.data[cb], (rows[cb], newidx[cols[cb]])), shape=(nI, len(boundary)))
+    return A, WB
+
+
+def test_split_system_is_the_scipy_construction_exactly():
+    W, interior, loop, uv_b = _system()
+    A, WB = S.split_system(W, interior, loop)
+    Ar, WBr = ref_split(W, interior, loop)
+    for M, R in ((A, Ar), (WB, WBr)):
+        R.sort_indices()
+        assert np.array_equal(M.indptr, R.indptr) and np.array_equal(M.indices, R.indices)
+        assert np.array_equal(M.data, R.data)
+    # the right-hand side as scipy computes it, to the bit
+    Ac, WBc = S._split(W, interior, loop)
+    assert np.array_equal(WBc @ uv_b, WBr @ uv_b)
+    X = np.random.default_rng(0).normal(size=(len(interior), 2))
+    assert np.array_equal(Ac @ X, Ar @ X)
+    assert np.array_equal(Ac @ X[:, 0], Ar @ X[:, 0])
+
+
+def test_csr_round_trip():
+    W, *_ = _system("mean_value")
+    C = S._as_csr(W)
+    assert C.nnz == W.nnz and C.shape == W.shape
+    assert abs(C.tocsr() - W).max() == 0
+
+
+@pytest.mark.skipif(not S.have_pardiso(), reason="MKL Pardiso not available")
+@pytest.mark.parametrize("iparm", [S.PARDISO_FAST, {}])
+def test_pardiso_ctypes_matches_superlu(iparm):
+    W, interior, loop, uv_b = _system()
+    A, WB = S._split(W, interior, loop)
+    rhs = WB @ uv_b
+    ps = S._Pardiso(A, iparm)
+    try:
+        ps.factorize()
+        X = ps.solve(rhs)
+        with pytest.raises(RuntimeError, match="solve once"):
+            ps.solve(rhs[:, 1])  # MKL's two-level factorization gets this wrong
+    finally:
+        ps.free()
+    ref = S.solve_linear(A, rhs, "superlu")
+    assert np.abs(X - ref).max() < 1e-9
+    if not iparm:
+        assert ps.iparm[9] == 13  # pardisoinit's defaults were used (pivot perturbation 1e-13)
+
+
+@pytest.mark.skipif(not S.have_pardiso(), reason="MKL Pardiso not available")
+def test_pardiso_rejects_an_empty_row():
+    A = S.CSR(np.array([0, 1, 1]), np.array([0]), np.array([1.0]), (2, 2))
+    with pytest.raises(ValueError, match="empty row"):
+        S.solve_linear(A, np.ones((2, 2)), "pardiso")
+
+
+def test_pardiso_threads_is_positive_or_left_to_mkl(monkeypatch):
+    monkeypatch.delenv("MKL_NUM_THREADS", raising=False)
+    monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
+    t = S.pardiso_threads()
+    assert t is None or t >= 1
+    monkeypatch.setattr(S, "_busy_cpus", lambda: 99)
+    assert S.pardiso_threads() in (None, 1)
+    monkeypatch.setenv("MKL_NUM_THREADS", "2")
+    assert S.pardiso_threads() is None

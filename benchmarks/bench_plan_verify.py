@@ -5,9 +5,12 @@ For each mesh, pattern and scallop height the program is planned (``pipeline.pla
 ``conformill.verify`` (area-uniform samples, ball swept along every feed move) and given to
 LinuxCNC's ``rs274 -g`` when it is installed. Printed per row: the plan time, passes, the
 scallop p50 / p99.9 / max as a multiple of H over the samples farther than r from the
-boundary, uncut share, gouge max, rapid clearance, rs274 exit code and PASS/FAIL against
-issue 3's criteria (p99.9 <= 1.05 H, no uncut, gouge <= E, rapid clearance >= 0.5 mm,
-spiral = 1 pass, rs274 = 0, plan < 10 s).
+boundary, uncut share; the share of those samples no 3-axis ball can reach (undercuts,
+pockets tighter than the ball: ``verify.simulate.unreachable_samples``) and the scallop
+p99.9 / uncut share over the reachable ones ("R"); gouge max, rapid clearance, rs274 exit
+code and PASS/FAIL against issue 3's criteria (p99.9 <= 1.05 H and no uncut on the
+reachable samples, gouge <= E, rapid clearance >= 0.5 mm, spiral = 1 pass, rs274 = 0,
+plan < 10 s).
 
 Meshes: seeded ``synthetic.face_like`` / ``synthetic.cad_like`` (about 120-130 mm, 22-28 mm
 relief, slopes up to 55 deg, 17k-22k irregular faces, non-convex outlines) and the shipped
@@ -69,7 +72,8 @@ def main() -> int:
     out.mkdir(parents=True, exist_ok=True)
     print(f"r = {r} mm, e = {e} mm, {args.samples} verify samples; programs in {out}")
     hdr = (f"{'mesh':16s} {'faces':>6s} {'pattern':8s} {'H':>5s} {'plan s':>6s} {'pass':>4s} {'CL pts':>8s} "
-           f"{'feed m':>7s} {'p50/H':>6s} {'p999/H':>7s} {'max/H':>7s} {'uncut%':>7s} {'gouge':>7s} "
+           f"{'feed m':>7s} {'p50/H':>6s} {'p999/H':>7s} {'max/H':>7s} {'uncut%':>7s} {'unrch%':>6s} {'R p999/H':>8s} "
+           f"{'R uncut%':>8s} {'gouge':>7s} "
            f"{'rapid':>6s} {'rs274':>5s}  verdict")
     print(hdr)
     print("-" * len(hdr))
@@ -84,7 +88,8 @@ def main() -> int:
                 st = write_gcode(path, res.toolpath, feed=job.feed, plunge_feed=job.feed / 3)
                 dt = time.perf_counter() - t
                 prog = read_gcode(path)
-                v = verify(res.mesh, prog, r, n_samples=args.samples, scallop=1.05 * h, gouge=e).summary
+                v = verify(res.mesh, prog, r, n_samples=args.samples, scallop=1.05 * h, gouge=e, judge="reachable").summary
+                q = v["reachable"]
                 rc = rs274(path)
                 sc = v["scallop"]
                 fails = list(v["failures"])
@@ -99,7 +104,8 @@ def main() -> int:
                 n_fail += bool(fails)
                 print(f"{m.name:16s} {len(m.F):6d} {pat:8s} {h:5g} {dt:6.2f} {st['passes']:4d} {st['cut_points']:8d} "
                       f"{st['feed_length_mm'] / 1000:7.2f} {sc['p50'] / h:6.3f} {sc['p999'] / h:7.3f} "
-                      f"{sc['max'] / h:7.3f} {100 * v['uncut_fraction']:7.3f} {v['gouge_max']:7.4f} "
+                      f"{sc['max'] / h:7.3f} {100 * v['uncut_fraction']:7.3f} {100 * q['unreachable_fraction']:6.2f} "
+                      f"{q['scallop']['p999'] / h:8.3f} {100 * q['uncut_fraction']:8.3f} {v['gouge_max']:7.4f} "
                       f"{min(v['rapid_min_clearance'], 99):6.2f} {str(rc):>5s}  "
                       + ("PASS" if not fails else "FAIL: " + "; ".join(fails)), flush=True)
     print(f"{n_fail} failing rows")

@@ -93,3 +93,24 @@ def test_safe_z_below_part_is_refused():
     part = synthetic.sphere_cap(R=30, radius_xy=10, spacing=2)
     with pytest.raises(PlanningError, match="safe-z"):
         plan(part, Job(tool_radius=2, scallop=0.1, safe_z=0.0))
+
+
+def test_concave_trough_spacing_flat_cap_and_exact_formula():
+    """On a concave cylinder the paper's formula spaces wider than flat; the default caps it."""
+    from conformill.planning.steps import side_interval
+
+    Rc = 12.0
+    part = synthetic.cylinder_patch(R=Rc, length=40.0, half_angle=0.7, spacing=1.0, concave=True)
+    h = 0.2
+    flat = float(side_interval(h, R_TOOL, np.zeros(1))[0][0])
+    concave = float(side_interval(h, R_TOOL, np.array([1.0 / Rc]))[0][0])
+    assert concave > 1.1 * flat
+    for mode in ("flat", "exact"):
+        res = plan(part, Job(pattern="contour", tool_radius=R_TOOL, scallop=h, tolerance=0.02, concave_steps=mode))
+        ls = np.concatenate([p.side_allowed for p in res.domain_paths.paths])
+        mid = np.concatenate([p.side_realised for p in res.domain_paths.paths[:-1]])
+        assert np.nanmax(mid) <= np.nanmax(ls) * (1 + 1e-6)
+        if mode == "flat":
+            assert np.nanmax(ls) <= flat * (1 + 1e-6)
+        else:  # where the rings run along the axis, the step is the concave one (fitted curvature)
+            assert np.nanpercentile(ls, 95) == pytest.approx(concave, rel=0.05)

@@ -559,8 +559,9 @@ class BallCutter:
         A linear move between two safe ball centres can still cut into the part where the
         drop surface ``D`` (the highest safe centre height) bulges above the chord: convex
         regions and creases. A move no longer than ``L_safe = 2 sqrt(r^2 - (r - tol/2)^2)``
-        cannot cut deeper than ``tol / 2`` (exact bound, see the code) and is accepted; a
-        longer one is sampled every ``step`` (3D length); where the
+        cannot cut deeper than ``tol / 2`` (exact bound, see the code) and is accepted; one
+        up to ``2 L_safe`` gets its drop midpoint inserted (both halves are then short
+        enough); a longer one is sampled every ``step`` (3D length); where the
         chord lies below ``D`` by more than ``tol / 2`` at a sample, the worst sample
         ``(x, y, D)`` is inserted; repeated until no segment violates (at most ``max_iter``
         rounds; the last round inserts every violating sample).
@@ -620,6 +621,12 @@ class BallCutter:
             # sample by 3D length: a steep move has a short XY projection but can still dip
             l3 = np.linalg.norm(b - a, axis=1)
             ns = np.ceil(l3 / step).astype(np.int64) - 1  # interior samples per segment
+            # A move up to 2 L_safe long gets its drop midpoint inserted, whatever its dip:
+            # both halves are then short enough for the bound (one drop instead of several
+            # samples, and exact). Longer moves are sampled every ``step``.
+            mid_only = l3 <= 2.0 * l_safe
+            ns[mid_only] = 1
+            seg_thr = np.where(mid_only, -np.inf, thresh)
             ns = np.maximum(ns, 0)
             tot = int(ns.sum())
             if tot == 0:
@@ -631,7 +638,7 @@ class BallCutter:
             S = a[owner] + t[:, None] * (b[owner] - a[owner])
             D = self.drop(S[:, :2])
             v = D - S[:, 2]  # -inf where the ball leaves the mesh: never a violation
-            bad = v > thresh
+            bad = (v > seg_thr[owner]) & np.isfinite(D)
             if not bad.any():
                 check[:] = False
                 break
@@ -650,7 +657,10 @@ class BallCutter:
             P, check = _insert(P, check, after, newpts, recheck=not last)
             if not last:  # re-check only the touched moves that are still long enough to dip
                 idx = np.flatnonzero(check)
-                check[idx] = np.linalg.norm(P[idx + 1] - P[idx], axis=1) > l_safe
+                d = P[idx + 1] - P[idx]
+                # a (nearly) vertical move between two safe centres is safe: the drop surface
+                # is the lowest safe height over each XY point
+                check[idx] = (np.linalg.norm(d, axis=1) > l_safe) & (np.hypot(d[:, 0], d[:, 1]) > 1e-4 * step)
             if last:
                 log.warning("cutter.refine: stopped after %d rounds; %d points inserted in the last round",
                             max_iter, len(ins_idx))

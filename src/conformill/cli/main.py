@@ -11,6 +11,7 @@ import argparse
 import importlib
 import logging
 import sys
+import warnings
 
 from conformill import __version__
 from conformill.errors import ConformillError
@@ -54,6 +55,19 @@ def main(argv: list[str] | None = None) -> int:
         level=logging.DEBUG if args.verbose else logging.WARNING,
         format="conformill: %(levelname)s: %(message)s",
     )
+    with warnings.catch_warnings():
+        # library warnings (RuntimeWarning from a fit, ...) become one log line each, without
+        # the Python source line that warnings.showwarning would print
+        warnings.simplefilter("default")
+        warnings.showwarning = _show_warning
+        return _run(args)
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None):
+    logging.getLogger("conformill").warning("%s", message)
+
+
+def _run(args) -> int:
     try:
         return int(args._module.run(args))
     except ConformillError as exc:

@@ -23,6 +23,9 @@ def add_arguments(p) -> None:
                    help="auto: turn the part so its mean normal is +Z")
     p.add_argument("--weights", default="geodesic", choices=["geodesic", "floater", "mean_value", "cotangent"])
     p.add_argument("--corners", default=None, metavar="i,j,k,l", help="rectangle corners (zigzag)")
+    p.add_argument("--concave-steps", choices=["flat", "exact"], default="flat",
+                   help="side step where the surface is concave: never wider than on a plane (flat, default) "
+                        "or the paper's concave formula (exact)")
     p.add_argument("--max-step", type=float, default=10.0, metavar="L", help="longest forward step, mm (10)")
     p.add_argument("--threads", type=int, default=None, metavar="N", help="threads for parallel stages (all)")
     p.add_argument("-o", "--output", required=True, metavar="OUT.nc")
@@ -64,7 +67,8 @@ def run(args) -> int:
         numba.set_num_threads(min(args.threads, numba.config.NUMBA_NUM_THREADS))
     job = Job(pattern=args.pattern, tool_radius=args.tool_radius, scallop=args.scallop, tolerance=args.tolerance,
               feed=args.feed, plunge_feed=args.plunge_feed, safe_z=args.safe_z, orient=args.orient,
-              weights=args.weights, corners=_corners(args.corners), max_step=args.max_step, spindle=args.spindle)
+              weights=args.weights, corners=_corners(args.corners), max_step=args.max_step, spindle=args.spindle,
+              concave_steps=args.concave_steps)
     from conformill.pipeline import check_job
 
     check_job(job)
@@ -85,7 +89,7 @@ def run(args) -> int:
         "mesh": args.mesh, "pattern": job.pattern, "tool": f"ball R{job.tool_radius:g} (D{2 * job.tool_radius:g})",
         "scallop": job.scallop, "tolerance": job.tolerance, "feed": job.feed,
         "plunge_feed": job.plunge_feed or job.feed / 3, "safe_z": round(result.toolpath.safe_z, 4),
-        "scale": args.scale, "orient": job.orient, "weights": job.weights,
+        "scale": args.scale, "orient": job.orient, "weights": job.weights, "concave steps": job.concave_steps,
         "programmed point": "tool tip", "units": "mm",
     }
     with all_or_nothing(args.output, args.report, args.plot, args.html):

@@ -63,16 +63,28 @@ def plot_plan(path, result, dpi: int = 110) -> None:
     ax0.set_ylabel("v")
 
     ax1 = fig.add_subplot(1, 3, 2, projection="3d")
-    ax1.set_title("tool tip passes on the part (mm)", fontsize=10)
+    ax1.set_title("tool tip paths on the part (mm), coloured by machining order", fontsize=10)
     Fd = F if len(F) <= 60000 else F[:: int(np.ceil(len(F) / 60000))]
     ax1.plot_trisurf(V[:, 0], V[:, 1], V[:, 2], triangles=Fd, color="0.85", alpha=0.35, linewidth=0, shade=True)
     unreach = result.report.get("reachability", {}).get("concave_regions", [])
     for reg in unreach:
         c = np.asarray(reg["centre"], dtype=float)
         ax1.scatter([c[0]], [c[1]], [c[2]], color="red", s=20)
-    for k, P in enumerate(result.toolpath.passes):
-        q = _decimate(P, 20000)
-        ax1.plot(q[:, 0], q[:, 1], q[:, 2], lw=0.4, color=cmap(k / max(len(result.toolpath.passes) - 1, 1)))
+    # colour by position in the program (machining order), so that neighbouring
+    # revolutions of one spiral pass, or rows of one linked zigzag, are told apart
+    from mpl_toolkits.mplot3d.art3d import Line3DCollection
+
+    passes = result.toolpath.passes
+    total = max(sum(len(P) for P in passes), 1)
+    done = 0
+    for P in passes:
+        idx = np.linspace(0, len(P) - 1, min(len(P), max(2, 40000 * len(P) // total))).astype(int)
+        q = P[idx]
+        if len(q) >= 2:
+            segs = np.stack([q[:-1], q[1:]], axis=1)
+            lc = Line3DCollection(segs, colors=cmap((done + idx[:-1]) / total), linewidths=0.4)
+            ax1.add_collection3d(lc)
+        done += len(P)
     lo, hi = V.min(0), V.max(0)
     ctr, rad = 0.5 * (lo + hi), 0.5 * float(np.max(hi - lo))
     ax1.set_xlim(ctr[0] - rad, ctr[0] + rad)

@@ -188,12 +188,15 @@ class Planner:
     params : conformill.types.PathParams
     seg_len : float
         Target 3D length (mm) between dense samples of a curve.
+    concave_cap : float, optional
+        Upper bound of the side interval (mm), e.g. the flat one; ``None`` for none.
     """
 
-    def __init__(self, surface, params, seg_len: float):
+    def __init__(self, surface, params, seg_len: float, concave_cap: float | None = None):
         self.surface = surface
         self.params = params
         self.seg_len = float(seg_len)
+        self.concave_cap = concave_cap
 
     # -- evaluation ---------------------------------------------------------------
     def evaluate(self, family: Family, s: float, max_rounds: int = 6) -> Curve:
@@ -216,7 +219,10 @@ class Planner:
         S = self.surface.sample(P)
         kappa = S.curvature(S.across(t))
         ls, reach = side_interval(self.params.scallop, self.params.tool_radius, kappa)
-        return Curve(s, tau, S, t, np.asarray(ls, dtype=np.float64), np.asarray(reach, dtype=bool))
+        ls = np.asarray(ls, dtype=np.float64)
+        if self.concave_cap is not None:
+            ls = np.minimum(ls, self.concave_cap)
+        return Curve(s, tau, S, t, ls, np.asarray(reach, dtype=bool))
 
     def domain_steps(self, c: Curve) -> np.ndarray:
         """Domain step across the curve at each sample: ``l_s |r_t| / sqrt(EG - F^2)``."""

@@ -1,0 +1,73 @@
+"""`conformill plan` at scale against one libigl harmonic map of the same mesh, same run.
+
+Issue 5, point 1: on ``large_igea_face_subdiv1.ply`` (620k faces, x1400 to about 140 mm),
+r = 4, h = 0.01, e = 0.01, each pattern's *whole* ``conformill plan`` process (read, orient,
+parameterize, frame, paths, cutter, G-code) should take at most 1.5x one ``igl.harmonic``
+call (cotangent weights, circle boundary) and peak under 4 GB.
+
+Each run is a fresh subprocess (peak RSS from ``os.wait4``); conformill and igl runs are
+interleaved so that background load hits both alike. The stage timings come from the
+plan's JSON report.
+
+    python benchmarks/bench_scale.py [MESH] [--scale 1400] [--patterns zigzag contour spiral]
+        [--h 0.01] [--repeat 1]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).parent))
+from bench_param import IGL_CHILD, run_child  # noqa: E402
+
+DEFAULT = Path(os.environ.get("CONFORMILL_MESHES", "/work/shared/meshes")) / "large_igea_face_subdiv1.ply"
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("mesh", nargs="?", default=str(DEFAULT))
+    ap.add_argument("--scale", type=float, default=1400.0)
+    ap.add_argument("--patterns", nargs="*", default=["zigzag", "contour", "spiral"])
+    ap.add_argument("--h", type=float, default=0.01)
+    ap.add_argument("--tolerance", type=float, default=0.01)
+    ap.add_argument("--radius", type=float, default=4.0)
+    ap.add_argument("--repeat", type=int, default=1)
+    args = ap.parse_args(argv)
+    igl_cmd = [sys.executable, "-c", IGL_CHILD, args.mesh, str(args.scale)]
+    print(f"mesh {args.mesh} x{args.scale:g}; r = {args.radius:g}, h = {args.h:g}, e = {args.tolerance:g}; "
+          f"{os.cpu_count()} CPUs")
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for pat in args.patterns:
+            nc, rep = str(Path(tmp) / f"{pat}.nc"), str(Path(tmp) / f"{pat}.json")
+            cmd = [sys.executable, "-m", "conformill", "plan", args.mesh, "--scale", str(args.scale),
+                   "--pattern", pat, "--tool-radius", str(args.radius), "--scallop", str(args.h),
+                   "--tolerance", str(args.tolerance), "-o", nc, "--report", rep, "-q"]
+            for _ in range(args.repeat):
+                w_igl, rss_igl, out = run_child(igl_cmd)
+                h_igl = float(out.split("HARMONIC")[1].split()[0])
+                w, rss, _ = run_child(cmd)
+                r = json.loads(Path(rep).read_text())
+                rows.append((pat, w, rss, h_igl, w_igl, r))
+                t = r["timings_s"]
+                stages = ", ".join(f"{k} {v:.1f}" for k, v in t.items() if k != "total")
+                print(f"{pat:8s} plan {w:6.1f} s  peak {rss:6.0f} MB | igl.harmonic {h_igl:5.2f} s "
+                      f"(its process {w_igl:5.1f} s, {rss_igl:5.0f} MB) | ratio {w / h_igl:5.2f} "
+                      f"(target <= 1.5) | {r['program']['cut_points']} CL points, "
+                      f"{r['program']['feed_length_mm'] / 1000:.1f} m | {stages}", flush=True)
+    print()
+    print("| pattern | plan process (s) | peak RSS (MB) | igl.harmonic (s) | ratio | CL points | feed (m) |")
+    print("|---|---|---|---|---|---|---|")
+    for pat, w, rss, h_igl, _, r in rows:
+        print(f"| {pat} | {w:.1f} | {rss:.0f} | {h_igl:.2f} | {w / h_igl:.1f} | {r['program']['cut_points']} | "
+              f"{r['program']['feed_length_mm'] / 1000:.1f} |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

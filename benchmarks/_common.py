@@ -171,12 +171,14 @@ def length_floor(mesh, k1, k2, h: float, r: float) -> dict:
 def reachable_samples(mesh, samples, r: float, tol: float) -> np.ndarray:
     """Samples that a 3-axis ball of radius ``r`` can touch (to within ``tol``).
 
-    A sample ``P`` with normal ``n`` (towards the tool) counts as reachable when ``n_z > 0``
-    (it faces up) and the ball tangent to the surface there, centred at ``C = P + r n``,
-    penetrates the part by less than ``tol`` (distance from ``C`` to the mesh >= ``r - tol``,
-    libigl's AABB point-mesh distance). This removes undercuts and concave regions tighter
-    than the ball. It does not check that the ball can come down to ``C`` from above
-    (shadowing by overhangs), so it may keep a few unreachable samples.
+    A sample ``P`` on face ``f`` with face normal ``n_f`` (towards the tool) counts as
+    reachable when ``n_f,z > 0`` (it faces up) and the ball tangent to that facet at ``P``,
+    centred at ``C = P + r n_f``, penetrates the part by less than ``tol`` (distance from
+    ``C`` to the mesh >= ``r - tol``, libigl's AABB point-mesh distance). This removes
+    undercuts and concave regions tighter than the ball. The facet normal (not the
+    interpolated vertex normal) is used so that a ball on faceted convex ground does not
+    cut the facet it stands on. It does not check that the ball can come down to ``C`` from
+    above (shadowing by overhangs), so it may keep a few unreachable samples.
 
     Returns
     -------
@@ -184,7 +186,13 @@ def reachable_samples(mesh, samples, r: float, tol: float) -> np.ndarray:
     """
     import igl
 
-    P, N = samples.points, samples.normals
+    V = np.asarray(mesh.V, dtype=np.float64)
+    F = np.asarray(mesh.F, dtype=np.int64)
+    n = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+    if (n * face_areas(V, F)[:, None]).sum(0)[2] < 0:  # as the samples: the tool comes from +Z
+        n = -n
+    P, N = samples.points, n[samples.face]
     C = np.ascontiguousarray(P + r * N)
     d2, _, _ = igl.point_mesh_squared_distance(C, np.ascontiguousarray(mesh.V, dtype=np.float64),
                                                np.ascontiguousarray(mesh.F, dtype=np.int64))

@@ -48,10 +48,14 @@ to LinuxCNC's ``rs274 -g`` when it is installed. Columns:
   :func:`_common.length_floor`; ``s_max`` from the exact side-interval formula of
   :mod:`conformill.planning.steps` with the most concave principal curvature);
 * scallop p50/p99/p99.9/max in units of ``h`` over the interior samples (farther than ``r``
-  from the boundary), as ``conformill verify`` reports them; ``p99.9 reach``: the same
-  over the interior samples a 3-axis ball can touch (:func:`_common.reachable_samples`:
-  facing up, tangent ball penetrating the part by less than ``h``), uncut samples counted
-  as infinite; ``>h %``: interior area with more than ``h`` left (or uncut); ``uncut %``;
+  from the boundary), as ``conformill verify`` reports them; ``p99.9 reach`` and
+  ``uncut reach %``: the same over the interior samples that ``conformill verify`` counts
+  as reachable by a 3-axis ball (``summary["reachable"]``: tangent ball free, shank free,
+  facing up; uncut samples excluded from the percentile and counted separately);
+  ``p99.9 ball`` / ``uncut ball %``: this script's own, simpler test
+  (:func:`_common.reachable_samples`: facing up, tangent ball penetrating the part by less
+  than ``h``, no shank check), uncut samples counted as infinite in the percentile;
+  ``>h %``: interior area with more than ``h`` left (or uncut); ``uncut %``;
   ``gouge um``: deepest interior gouge; ``rapid``: least clearance of the rapids (mm);
   ``rs274``: the interpreter's exit code.
 
@@ -59,6 +63,8 @@ Usage::
 
     python benchmarks/bench_raster.py --quick                 # h = 0.1, two small meshes
     python benchmarks/bench_raster.py --meshes igea choi --h 0.01 --md out.md
+    python benchmarks/bench_raster.py --reverify out.json --keep DIR --md out2.md
+        # verify the kept programs again (timings and lengths from the JSON)
 
 Needs opencamlib; the shared meshes (/work/shared/meshes or $CONFORMILL_MESHES) for
 everything but the shipped samples.
@@ -259,6 +265,11 @@ def measure(mesh, path: Path, r, h, e, samples, reach, safe_z):
         "scallop": {k: float(s["scallop"][k]) for k in ("p50", "p99", "p999", "max")},
         "p999_reach": upper_quantile(np.where(np.isfinite(rem), rem, np.inf), 0.999),
         "uncut_reach": float((~np.isfinite(rem)).mean()) if rem.size else math.nan,
+        # conformill verify's own reachable set (ball, shank and undercut), when it has one
+        "verify_reach": ({"p999": float(s["reachable"]["scallop"]["p999"]),
+                          "uncut": float(s["reachable"]["uncut_fraction"]),
+                          "unreachable": float(s["reachable"].get("unreachable_fraction", math.nan))}
+                         if "reachable" in s else None),
         "above_h": float(s["interior"].get("above_scallop_fraction", math.nan)),
         "uncut": float(s["uncut_fraction"]),
         "gouge_max": float(s["gouge_max"]),
@@ -333,13 +344,15 @@ def run_mesh(name, h, r, e, n_samples, folder: Path, log):
 # ---- tables -----------------------------------------------------------------------------
 
 COLS = ("program", "wall s", "cpu s", "OCL x", "CL pts", "feed m", "len/floor", "p50/h", "p99/h", "p99.9/h",
-        "max/h", "p99.9 reach/h", "uncut reach %", ">h %", "uncut %", "gouge um", "rapid mm", "rs274")
+        "max/h", "p99.9 reach/h", "uncut reach %", "p99.9 ball/h", "uncut ball %", ">h %", "uncut %", "gouge um",
+        "rapid mm", "rs274")
 
 
 def _cells(row, h, floor_mm):
     if "error" in row:
         return [row["program"], "failed: " + row["error"][:80]] + [""] * (len(COLS) - 2)
     sc = row["scallop"]
+    vr = row.get("verify_reach")
 
     def f(x, fmt):
         return "inf" if x == math.inf else ("-" if x is None or (isinstance(x, float) and math.isnan(x)) else fmt % x)
@@ -347,6 +360,7 @@ def _cells(row, h, floor_mm):
     return [row["program"], f(row["wall_s"], "%.2f"), f(row["cpu_s"], "%.2f"), f(row["ocl_ratio"], "%.1f"),
             str(row["cl_points"]), f(row["feed_mm"] / 1000, "%.2f"), f(row["feed_mm"] / floor_mm, "%.2f"),
             f(sc["p50"] / h, "%.3f"), f(sc["p99"] / h, "%.3f"), f(sc["p999"] / h, "%.3f"), f(sc["max"] / h, "%.1f"),
+            f(vr["p999"] / h if vr else None, "%.3f"), f(100 * vr["uncut"] if vr else None, "%.3f"),
             f(row["p999_reach"] / h, "%.3f"), f(100 * row["uncut_reach"], "%.3f"), f(100 * row["above_h"], "%.2f"),
             f(100 * row["uncut"], "%.3f"), f(1000 * row["gouge_max"], "%.1f"), f(min(row["rapid"], 99), "%.2f"),
             str(row["rs274"])]
@@ -361,6 +375,7 @@ def markdown(results, machine: str) -> str:
     for R in results:
         ext = R["extent_mm"]
         ras = R["raster"]
+        vr = next((row["verify_reach"] for row in R["rows"] if row.get("verify_reach")), None)
         out.append(f"### {R['mesh']}, h = {R['h']:g} mm (r = {R['r']:g} mm, e = {R['e']:g} mm)\n")
         out.append(f"{R['faces']} faces, {ext[0]:.1f} x {ext[1]:.1f} x {ext[2]:.1f} mm (scale {R['scale']:.4g}, "
                    f"turned {R['rotated_deg']:.1f} deg). Length floor {R['floor']['floor_mm'] / 1000:.2f} m "
@@ -370,13 +385,40 @@ def markdown(results, machine: str) -> str:
                    f"({ras['ms_per_point']:.2f} ms each, {ras['run_s']:.1f} s), chord check |dz| p99 "
                    f"{1000 * R['chord_dz']['p99_abs']:.1f} um, p99.9 {1000 * R['chord_dz']['p999_abs']:.1f} um, max {1000 * R['chord_dz']['max_abs']:.1f} um. "
                    f"Verify: {R['samples']} samples, {R['interior']} interior, "
-                   f"{100 * R['reachable_share']:.2f} % of them reachable.\n")
+                   f"{100 * R['reachable_share']:.2f} % of them reachable by the tangent-ball test"
+                   + ("" if not vr else f", {100 * (1 - vr['unreachable']):.2f} % by conformill verify's") + ".\n")
         out.append("| " + " | ".join(COLS) + " |")
         out.append("|" + "---|" * len(COLS))
         for row in R["rows"]:
             out.append("| " + " | ".join(_cells(row, R["h"], R["floor"]["floor_mm"])) + " |")
         out.append("")
     return "\n".join(out)
+
+
+def reverify(old: dict, folder: Path, log) -> dict:
+    """Measure the kept programs of one mesh again (e.g. after ``verify`` changed)."""
+    from conformill.pipeline import orient_mesh
+    from conformill.verify.samples import sample_surface
+
+    name = next(k for k in _common.MESH_FILES if k.replace("sample:", "sample_") == old["mesh"])
+    mesh, _ = _common.load_part(name)
+    mesh, _ = orient_mesh(mesh, "none")  # as plan() did: re-wound if the normals point down
+    r, h, e = old["r"], old["h"], old["e"]
+    samples = sample_surface(mesh.V, mesh.F, old["samples"], seed=0, boundary_spacing=min(0.1, r / 20),
+                             boundary_max=2 * r)
+    reach = _common.reachable_samples(mesh, samples, r, tol=h)
+    new = dict(old, rows=[])
+    for row in old["rows"]:
+        if "error" in row:
+            new["rows"].append(row)
+            continue
+        tag = "ocl" if row["program"].startswith("OpenCAMLib") else row["program"].split()[-1]
+        p = folder / f"{old['mesh']}_{tag}_h{h:g}.nc"
+        safe = float(mesh.V[:, 2].max()) + 5.0
+        m = measure(mesh, p, r, h, e, samples, reach, safe)
+        new["rows"].append({**row, **{k: v for k, v in m.items() if k != "rs274"}})
+        log(f"   {old['mesh']}: " + fmt_row(new["rows"][-1], h, old["floor"]["floor_mm"]))
+    return new
 
 
 def main(argv=None) -> int:
@@ -390,7 +432,19 @@ def main(argv=None) -> int:
     ap.add_argument("--keep", default=None, help="folder for the programs (default: a temporary one)")
     ap.add_argument("--md", default=None, help="write the tables as Markdown here")
     ap.add_argument("--json", default=None, help="write all figures as JSON here")
+    ap.add_argument("--reverify", default=None, metavar="OLD.json",
+                    help="only verify the programs kept in --keep again (figures of a previous run)")
     args = ap.parse_args(argv)
+    if args.reverify:
+        old = json.loads(Path(args.reverify).read_text())
+        res = [reverify(R, Path(args.keep), print) for R in old["results"]]
+        md = markdown(res, old["machine"])
+        if args.md:
+            Path(args.md).write_text(f"Machine: {old['machine']}\n\n" + md)
+        if args.json:
+            Path(args.json).write_text(json.dumps({"machine": old["machine"], "results": res}, indent=1, default=str))
+        print(md)
+        return 0
     meshes = args.meshes or (QUICK_MESHES if args.quick else FULL_MESHES)
     h = args.h if args.h is not None else (0.1 if args.quick else 0.01)
     n = args.samples or (100_000 if args.quick else 400_000)

@@ -23,23 +23,13 @@ Usage: ``python benchmarks/bench_plan_verify.py [--seeds 0 1] [--h 1 0.1]
 from __future__ import annotations
 
 import argparse
-import math
-import shutil
-import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
-
-def rs274(path: Path) -> int | None:
-    exe = shutil.which("rs274")
-    if exe is None:
-        return None
-    with tempfile.TemporaryDirectory() as d:
-        p = subprocess.run(["env", "-u", "DISPLAY", exe, "-g", str(path), str(Path(d) / "out.canon")],
-                           stdin=subprocess.DEVNULL, capture_output=True, timeout=600)
-        return p.returncode
+sys.path.insert(0, str(Path(__file__).parent))
+from _common import rs274  # noqa: E402
 
 
 def main() -> int:

@@ -190,13 +190,19 @@ class Planner:
         Target 3D length (mm) between dense samples of a curve.
     concave_cap : float, optional
         Upper bound of the side interval (mm), e.g. the flat one; ``None`` for none.
+    rise_tol, max_step : float
+        Forward chord tolerance and longest forward step (mm): the chord rise over concave
+        stretches is taken off the scallop height before the side step is computed.
     """
 
-    def __init__(self, surface, params, seg_len: float, concave_cap: float | None = None):
+    def __init__(self, surface, params, seg_len: float, concave_cap: float | None = None,
+                 rise_tol: float = 0.0, max_step: float = np.inf):
         self.surface = surface
         self.params = params
         self.seg_len = float(seg_len)
         self.concave_cap = concave_cap
+        self.rise_tol = float(rise_tol)
+        self.max_step = float(max_step)
 
     # -- evaluation ---------------------------------------------------------------
     def evaluate(self, family: Family, s: float, max_rounds: int = 6) -> Curve:
@@ -218,7 +224,16 @@ class Planner:
         P, t = family.along(s, tau)
         S = self.surface.sample(P)
         kappa = S.curvature(S.across(t))
-        ls, reach = side_interval(self.params.scallop, self.params.tool_radius, kappa)
+        # Where the path is concave along its direction, its straight moves ride above the
+        # surface by up to the forward chord tolerance (or kappa L_max^2 / 8 when the
+        # longest step binds): that material adds to the scallop, so the side step there
+        # is planned for what is left of h. Zero on planes and on convex ground.
+        h = self.params.scallop
+        if self.rise_tol > 0:
+            along = np.maximum(S.curvature(t), 0.0)
+            rise = np.minimum(self.rise_tol, along * self.max_step ** 2 / 8.0)
+            h = h - np.nan_to_num(rise, nan=self.rise_tol)
+        ls, reach = side_interval(h, self.params.tool_radius, kappa)
         ls = np.asarray(ls, dtype=np.float64)
         if self.concave_cap is not None:
             ls = np.minimum(ls, self.concave_cap)

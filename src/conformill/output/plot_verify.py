@@ -14,7 +14,7 @@ def plot_verify(path, result, max_pixels: int = 700, dpi: int = 110, title: str 
     Left: the samples seen from +Z (top view) binned into pixels, each pixel coloured by the
     largest remaining material along the normal of its samples (mm, colour bar; the scale
     is clipped at twice the scallop limit, or at the p99.9); pixels with a gouged sample
-    (deeper than 1 um) in magenta, with an uncut sample in black. Right: histogram of the remaining material
+    (deeper than the gouge limit G when given, else 1 um) in magenta, with an uncut sample in black. Right: histogram of the remaining material
     over the interior samples, with the scallop limit and the percentiles marked.
 
     Parameters
@@ -71,8 +71,13 @@ def plot_verify(path, result, max_pixels: int = 700, dpi: int = 110, title: str 
     handles = []
     from matplotlib.patches import Patch
 
+    # mark gouges beyond the limit G when one is given (those fail the check); otherwise
+    # anything deeper than 1 um
+    g_lim = s.get("thresholds", {}).get("gouge")
+    g_show = max(float(g_lim), 1e-3) if g_lim is not None else 1e-3
+    g_label = (f"gouge > G = {g_show:g} mm" if g_lim is not None else "gouge > 1 um")
     for mask, colour, label in ((~finite, "black", "uncut"),
-                                (gouge > 1e-3, "magenta", f"gouge > 1 um (max {s['all']['gouge_max']:.3g} mm)")):
+                                (gouge > g_show, "magenta", f"{g_label} (max {s['all']['gouge_max']:.3g} mm)")):
         if mask.any():
             over = np.zeros(nx * ny)
             over[cellid[mask]] = 1.0

@@ -17,7 +17,7 @@ id        dtype         contents
 ``H``     float32       remaining material per vertex, ``(n,)``, mm (NaN: no data)
 ========  ============  ===========================================================
 
-All passes form one ``THREE.LineSegments`` (indexed, vertex colours by pass index on a turbo
+All passes form one ``THREE.LineSegments`` (indexed, vertex colours by program position on a turbo
 colour map), the rapids one dashed red ``LineSegments``, so the page stays interactive with a
 300k-face mesh and a million path points. Nothing is decimated.
 
@@ -261,8 +261,9 @@ def write_viewer(path, V, F, passes: Sequence, rapids=None, heat=None, title: st
                  info: Mapping | None = None) -> None:
     """Write a self-contained HTML 3D view of a part and its tool paths.
 
-    The page shows the shaded part, the feed passes coloured by pass index (turbo colour
-    map, first pass blue, last red), the rapids dashed red and, when given, the remaining
+    The page shows the shaded part, the feed passes coloured by position in the program
+    (turbo colour map, start blue, end red: passes and the revolutions of one spiral
+    differ), the rapids dashed red and, when given, the remaining
     material as vertex colours (viridis, with a legend in mm). Mouse: left drag orbits,
     right drag pans, wheel zooms (towards the cursor); check boxes toggle each layer,
     buttons reset the view (fit, top, iso). A panel lists ``title``, ``info`` and summary
@@ -364,8 +365,8 @@ _PAGE_BODY = """<body>
 <div>
 <button type="button" id="cm-fit">fit</button><button type="button" id="cm-top">top</button><button type="button" id="cm-iso">iso</button>
 </div>
-<div class="cm-legend" id="cm-legend-paths"><div>passes (program order)</div><div class="cm-bar" id="cm-bar-paths"></div>
-<div class="cm-ticks"><span id="cm-pass-first">1</span><span id="cm-pass-last"></span></div></div>
+<div class="cm-legend" id="cm-legend-paths"><div>feed paths (program order, start to end)</div><div class="cm-bar" id="cm-bar-paths"></div>
+<div class="cm-ticks"><span id="cm-pass-first">start</span><span id="cm-pass-last"></span></div></div>
 <div class="cm-legend" id="cm-legend-rapids"><span class="cm-dash"></span>rapids</div>
 <div class="cm-legend" id="cm-legend-heat" style="display:none"><div>remaining material (mm)</div><div class="cm-bar" id="cm-bar-heat"></div>
 <div class="cm-ticks"><span id="cm-heat-lo"></span><span id="cm-heat-mid"></span><span id="cm-heat-hi"></span></div>
@@ -498,13 +499,15 @@ function main() {
     document.getElementById("cm-heat-hi").textContent = fmt(HEAT_RANGE[1]);
   }
 
-  /* feed passes: ONE indexed LineSegments, vertex colour = pass index on the turbo map */
+  /* feed passes: ONE indexed LineSegments, vertex colour = position in the program on the
+     turbo map (so one spiral pass still shows its revolutions, and passes differ) */
   var nPass = PO.length - 1, nPts = P.length / 3, paths = null;
   if (nPts > 0) {
     var pl = lut(PASS_STOPS), pc = new Float32Array(P.length), idx = new Uint32Array(2 * Math.max(nPts - nPass, 0)), m = 0;
     for (var p = 0; p < nPass; p++) {
-      var t = nPass > 1 ? p / (nPass - 1) : 0, q = Math.round(t * 255), a = PO[p], b = PO[p + 1];
+      var a = PO[p], b = PO[p + 1];
       for (var k = a; k < b; k++) {
+        var q = nPts > 1 ? Math.round(255 * k / (nPts - 1)) : 0;
         pc[3 * k] = pl[3 * q]; pc[3 * k + 1] = pl[3 * q + 1]; pc[3 * k + 2] = pl[3 * q + 2];
         if (k + 1 < b) { idx[m++] = k; idx[m++] = k + 1; }
       }
@@ -518,7 +521,7 @@ function main() {
     scene.add(paths);
   }
   document.getElementById("cm-bar-paths").style.background = gradientCss(PASS_STOPS);
-  document.getElementById("cm-pass-last").textContent = String(Math.max(nPass, 1));
+  document.getElementById("cm-pass-last").textContent = "end (" + nPass + (nPass === 1 ? " pass)" : " passes)");
   if (!paths) { disable("paths"); document.getElementById("cm-legend-paths").style.display = "none"; }
 
   /* rapids: one dashed LineSegments */

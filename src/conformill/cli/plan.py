@@ -104,17 +104,21 @@ def run(args) -> int:
             t = time.perf_counter()
             plot_plan(args.plot, result)
             report["timings_s"]["plot"] = time.perf_counter() - t
+        program = None
+        if args.verify or args.html:
+            from conformill.verify.gcode import read_gcode
+
+            # the checks and the viewer use the program as written: what the machine will run
+            program = read_gcode(args.output)
         if args.verify:
             t = time.perf_counter()
-            report["verify"] = _verify(result.mesh, args.output, job, args.verify_samples, args.quiet)
+            report["verify"] = _verify(result.mesh, program, job, args.verify_samples, args.quiet)
             report["timings_s"]["verify"] = time.perf_counter() - t
         if args.html:
             from conformill.cli.view import vertex_heat
             from conformill.output.viewer import split_program, write_viewer
-            from conformill.verify.gcode import read_gcode
 
             t = time.perf_counter()
-            program = read_gcode(args.output)  # what the machine will run, rapids included
             passes, rapids = split_program(program.points, program.motion, program.start)
             info = {"pattern": job.pattern, "tool": f"ball R{job.tool_radius:g}", "scallop H": job.scallop,
                     "tolerance E": job.tolerance}
@@ -141,17 +145,15 @@ SCALLOP_SLACK = 1.05
 """--verify passes when scallop p99.9 <= SCALLOP_SLACK * H (and gouge max <= E)."""
 
 
-def _verify(mesh, program_path, job, n_samples: int, quiet: bool) -> dict:
+def _verify(mesh, program, job, n_samples: int, quiet: bool) -> dict:
     """Run the independent simulation on the program as written to disk.
 
-    The program is read back from the G-code file (not from the planner's arrays), so the
-    check covers the writer too. Thresholds: scallop ``1.05 H`` at p99.9 over the samples
+    ``program`` is read back from the G-code file (not taken from the planner's arrays), so
+    the check covers the writer too. Thresholds: scallop ``1.05 H`` at p99.9 over the samples
     farther than ``R`` from the boundary, no uncut sample, gouge at most ``E``.
     """
-    from conformill.verify.gcode import read_gcode
     from conformill.verify.simulate import verify
 
-    program = read_gcode(program_path)
     bar = None
     if not quiet and sys.stderr.isatty():
         from tqdm import tqdm

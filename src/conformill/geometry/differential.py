@@ -486,14 +486,28 @@ def interpolate(values: np.ndarray, F: np.ndarray, face: np.ndarray, bary: np.nd
     if bary.shape != (len(face), 3):
         raise ConformillError(f"interpolate: bary must be ({len(face)}, 3), got {bary.shape}")
     outside = face < 0
-    tri = F[np.where(outside, 0, face)] if len(F) else np.zeros((len(face), 3), dtype=np.int64)
-    vals = values[tri]  # (k, 3) or (k, 3, c)
-    if values.ndim == 1:
-        out = np.einsum("ij,ij->i", vals, bary)
-    else:
-        out = np.einsum("ijc,ij->ic", vals, bary)
+    if len(F) == 0:
+        face = np.zeros(len(face), dtype=np.int64)
+        F = np.zeros((1, 3), dtype=np.int64)
+    cols = np.ascontiguousarray(values.reshape(values.shape[0], -1))
+    out = _interp_rows(cols, np.ascontiguousarray(F), np.where(outside, 0, face),
+                       np.ascontiguousarray(bary))
     if outside.any():
         out[outside] = np.nan
+    return out.reshape((len(face),) + values.shape[1:])
+
+
+@njit(cache=True)
+def _interp_rows(values, F, face, bary):
+    """``out[p] = sum_k bary[p, k] values[F[face[p], k]]`` for every column of ``values``."""
+    k, c = face.shape[0], values.shape[1]
+    out = np.empty((k, c))
+    for p in range(k):
+        f = face[p]
+        a, b, d = F[f, 0], F[f, 1], F[f, 2]
+        w0, w1, w2 = bary[p, 0], bary[p, 1], bary[p, 2]
+        for j in range(c):
+            out[p, j] = w0 * values[a, j] + w1 * values[b, j] + w2 * values[d, j]
     return out
 
 

@@ -7,10 +7,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
 
 from conformill.errors import PlanningError
-from conformill.geometry.differential import normal_curvature, perpendicular_direction, surface_frame
+from conformill.geometry.differential import interpolate, normal_curvature, perpendicular_direction, surface_frame
 from conformill.geometry.locate import Locator
 
 
@@ -77,11 +76,9 @@ class DomainSurface:
         self.frame = surface_frame(V, F, uv) if frame is None else frame
         self.locator = Locator(uv, F)
         fr = self.frame
-        self._I = np.column_stack([fr.E, fr.F, fr.G])
-        self._II = np.column_stack([fr.L, fr.M, fr.N])
-        # position, normal, I, II side by side: one gather per evaluation
-        self._pack = np.ascontiguousarray(np.hstack([V, fr.n, self._I, self._II]), dtype=np.float64)
-        self._F = np.ascontiguousarray(F, dtype=np.int64)
+        # position, normal, I = (E, F, G), II = (L, M, N) side by side: one gather per evaluation
+        self._pack = np.ascontiguousarray(np.column_stack([V, fr.n, fr.E, fr.F, fr.G, fr.L, fr.M, fr.N]),
+                                          dtype=np.float64)
 
     def sample(self, P: np.ndarray) -> SurfaceSample:
         """The surface at domain points ``P (k, 2)``.
@@ -99,21 +96,8 @@ class DomainSurface:
                 f"{bad.size} domain point(s) fall outside the parameter mesh, e.g. "
                 f"{P[bad[0]].round(6).tolist()}"
             )
-        out = _interp_rows(self._pack, self._F, face, np.ascontiguousarray(bary, dtype=np.float64))
+        out = interpolate(self._pack, self.F, face, bary)
         xyz, n, I, II = out[:, 0:3], out[:, 3:6], out[:, 6:9], out[:, 9:12]
         n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
         return SurfaceSample(uv=P, face=face, bary=bary, xyz=xyz, n=n, I=I, II=II)
 
-
-@njit(cache=True)
-def _interp_rows(values, F, face, bary):
-    """``out[p] = sum_k bary[p, k] values[F[face[p], k]]`` for all columns (faces >= 0)."""
-    k, c = face.shape[0], values.shape[1]
-    out = np.empty((k, c))
-    for p in range(k):
-        f = face[p]
-        a, b, d = F[f, 0], F[f, 1], F[f, 2]
-        w0, w1, w2 = bary[p, 0], bary[p, 1], bary[p, 2]
-        for j in range(c):
-            out[p, j] = w0 * values[a, j] + w1 * values[b, j] + w2 * values[d, j]
-    return out

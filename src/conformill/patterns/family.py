@@ -137,7 +137,7 @@ def curve_distance(P: np.ndarray, Q: np.ndarray, closed: bool = False, window: i
     return _walk_distance(P, Q, bool(closed), int(window))
 
 
-def exact_where_over(d: np.ndarray, limit: np.ndarray, P: np.ndarray, Q: np.ndarray, closed: bool) -> np.ndarray:
+def _exact_where_over(d: np.ndarray, limit: np.ndarray, P: np.ndarray, Q: np.ndarray, closed: bool) -> np.ndarray:
     """``d`` with the entries above ``limit`` recomputed exactly (k-d tree)."""
     over = np.flatnonzero(d > limit * (1.0 + 1e-9))
     if over.size == 0:
@@ -145,6 +145,26 @@ def exact_where_over(d: np.ndarray, limit: np.ndarray, P: np.ndarray, Q: np.ndar
     d = d.copy()
     d[over] = point_polyline_distance(P[over], Q, closed)
     return d
+
+
+def pair_distances(a, b, closed: bool = False):
+    """3D distances between neighbouring curves ``a`` and ``b`` (:class:`Curve`), both ways.
+
+    Returns ``(d_fwd, ratio)``: the distance from each sample of ``a`` to ``b``, and the
+    largest of ``d / l_s`` over both directions (samples of ``a`` to ``b`` and of ``b`` to
+    ``a``). The fast
+    walk (:func:`curve_distance`) may overestimate, so where it says a sample is too far
+    the distance is recomputed exactly before anything is decided.
+    """
+    Pa, Pb = a.sample.xyz, b.sample.xyz
+    d_fwd = curve_distance(Pa, Pb, closed)
+    d_bwd = curve_distance(Pb, Pa, closed)
+    ratio = max(np.max(d_fwd / a.ls), np.max(d_bwd / b.ls))
+    if ratio > 1.0 + 1e-9:
+        d_fwd = _exact_where_over(d_fwd, a.ls, Pa, Pb, closed)
+        d_bwd = _exact_where_over(d_bwd, b.ls, Pb, Pa, closed)
+        ratio = max(np.max(d_fwd / a.ls), np.max(d_bwd / b.ls))
+    return d_fwd, ratio
 
 
 class Curve:
@@ -278,13 +298,7 @@ class Planner:
             for _ in range(12):
                 s_next = min(cur.s + step, s_max)
                 nxt = self.evaluate(family, s_next)
-                d_fwd = curve_distance(cur.sample.xyz, nxt.sample.xyz, family.closed)
-                d_bwd = curve_distance(nxt.sample.xyz, cur.sample.xyz, family.closed)
-                ratio = max(np.max(d_fwd / cur.ls), np.max(d_bwd / nxt.ls))
-                if ratio > 1.0 + 1e-9:  # the walk may overestimate: decide on exact distances
-                    d_fwd = exact_where_over(d_fwd, cur.ls, cur.sample.xyz, nxt.sample.xyz, family.closed)
-                    d_bwd = exact_where_over(d_bwd, nxt.ls, nxt.sample.xyz, cur.sample.xyz, family.closed)
-                    ratio = max(np.max(d_fwd / cur.ls), np.max(d_bwd / nxt.ls))
+                d_fwd, ratio = pair_distances(cur, nxt, family.closed)
                 if ratio <= 1.0 + 1e-9:
                     break
                 shrinks += 1

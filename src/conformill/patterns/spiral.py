@@ -13,7 +13,7 @@ import numpy as np
 
 from conformill.patterns.contour import plan_rings
 from conformill.patterns.domains import Rings, SpiralTurn
-from conformill.patterns.family import curve_distance, exact_where_over
+from conformill.patterns.family import pair_distances
 from conformill.patterns.pieces import Piece, domain_paths
 
 
@@ -39,16 +39,12 @@ def plan_spiral(planner, poly, delta: float, progress=None, max_rounds: int = 4)
         realised, predicted, bad = [], [], set()
         for k in range(len(turns) - 1):
             a, b = turns[k], turns[k + 1]
-            d_fwd = curve_distance(a.sample.xyz, b.sample.xyz)
-            d_bwd = curve_distance(b.sample.xyz, a.sample.xyz)
-            if max(np.max(d_fwd / a.ls), np.max(d_bwd / b.ls)) > 1.0 + 1e-9:  # exact before deciding
-                d_fwd = exact_where_over(d_fwd, a.ls, a.sample.xyz, b.sample.xyz, False)
-                d_bwd = exact_where_over(d_bwd, b.ls, b.sample.xyz, a.sample.xyz, False)
+            d_fwd, ratio = pair_distances(a, b)
             realised.append(d_fwd)
             step = np.interp(a.tau, [0.0, 1.0], [radii[min(k + 1, len(radii) - 1)] - radii[k],
                                                   radii[min(k + 2, len(radii) - 1)] - radii[min(k + 1, len(radii) - 1)]])
             predicted.append(a.sample.area_factor() / a.sample.length(a.t) * step)
-            if max(np.max(d_fwd / a.ls), np.max(d_bwd / b.ls)) > 1.0 + 1e-9:
+            if ratio > 1.0 + 1e-9:
                 bad.update({k, k + 1})
         if not bad:
             break

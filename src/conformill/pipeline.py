@@ -58,6 +58,11 @@ class Job:
         on the face sample). "flat" (default) never spaces concave regions wider than a
         plane would be.
     spindle : float or None
+    spacing : {"adaptive", "paper"}
+        "paper": each path is an iso-line spaced from the last by the minimum allowed step
+        over it (METHOD 5). "adaptive" (default): the paths bend so that each place gets
+        the step it needs (:mod:`conformill.patterns.warp`); the same 3D spacing check
+        applies to both.
     """
 
     pattern: str = "spiral"
@@ -75,6 +80,7 @@ class Job:
     link_max: float | None = None
     spindle: float | None = None
     concave_steps: str = "flat"
+    spacing: str = "adaptive"
 
 
 class _Timer:
@@ -105,6 +111,8 @@ def check_job(job: Job) -> None:
         raise PlanningError(f"orient must be 'none' or 'auto', got {job.orient!r}")
     if job.concave_steps not in ("flat", "exact"):
         raise PlanningError(f"concave_steps must be 'flat' or 'exact', got {job.concave_steps!r}")
+    if job.spacing not in ("adaptive", "paper"):
+        raise PlanningError(f"spacing must be 'adaptive' or 'paper', got {job.spacing!r}")
 
 
 def face_normals(V: np.ndarray, F: np.ndarray):
@@ -281,14 +289,15 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
 
     with timer("pattern"):
         prog = (lambda f: say("pattern", f))
+        adaptive = job.spacing == "adaptive"
         if job.pattern == "zigzag":
             X, Y = param.domain
-            domain, pieces = plan_zigzag(planner, X, Y, delta, progress=prog)
+            domain, pieces = plan_zigzag(planner, X, Y, delta, progress=prog, adaptive=adaptive)
         else:
             uvb = param.uv[param.boundary]
             poly = BoundaryPolygon(uvb)
             fn_ = plan_contour if job.pattern == "contour" else plan_spiral
-            domain, pieces = fn_(planner, poly, delta, progress=prog)
+            domain, pieces = fn_(planner, poly, delta, progress=prog, adaptive=adaptive)
 
     link_max = job.link_max if job.link_max is not None else max(2.0 * r, 4.0 * flat_ls)
 
@@ -362,7 +371,7 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
                 "plunge_feed": job.plunge_feed or job.feed / 3, "safe_z": safe_z, "orient": job.orient,
                 "weights": job.weights, "max_step": job.max_step, "link_max": link_max,
                 "forward_chord_tolerance": e_fwd,
-                "concave_steps": job.concave_steps},
+                "concave_steps": job.concave_steps, "spacing": job.spacing},
         "orientation": orient_info,
         "parameterization": {"boundary": param.kind, "domain": param.domain, "corners": param.corners,
                              "solver": param.solver, "residual": param.residual, "fallbacks": param.fallbacks,

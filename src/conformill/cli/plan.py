@@ -26,6 +26,9 @@ def add_arguments(p) -> None:
     p.add_argument("--concave-steps", choices=["flat", "exact"], default="flat",
                    help="side step where the surface is concave: never wider than on a plane (flat, default) "
                         "or the paper's concave formula (exact)")
+    p.add_argument("--spacing", choices=["adaptive", "paper"], default="adaptive",
+                   help="paths bend to give each place the side step it needs (adaptive, default) or are "
+                        "the paper's iso-lines spaced by the smallest step along each (paper)")
     p.add_argument("--max-step", type=float, default=10.0, metavar="L", help="longest forward step, mm (10)")
     p.add_argument("--threads", type=int, default=None, metavar="N", help="threads for parallel stages (all)")
     p.add_argument("-o", "--output", required=True, metavar="OUT.nc")
@@ -68,7 +71,7 @@ def run(args) -> int:
     job = Job(pattern=args.pattern, tool_radius=args.tool_radius, scallop=args.scallop, tolerance=args.tolerance,
               feed=args.feed, plunge_feed=args.plunge_feed, safe_z=args.safe_z, orient=args.orient,
               weights=args.weights, corners=_corners(args.corners), max_step=args.max_step, spindle=args.spindle,
-              concave_steps=args.concave_steps)
+              concave_steps=args.concave_steps, spacing=args.spacing)
     from conformill.pipeline import check_job
 
     check_job(job)
@@ -89,7 +92,7 @@ def run(args) -> int:
         "mesh": args.mesh, "pattern": job.pattern, "tool": f"ball R{job.tool_radius:g} (D{2 * job.tool_radius:g})",
         "scallop": job.scallop, "tolerance": job.tolerance, "feed": job.feed,
         "plunge_feed": job.plunge_feed or job.feed / 3, "safe_z": round(result.toolpath.safe_z, 4),
-        "scale": args.scale, "orient": job.orient, "weights": job.weights, "concave steps": job.concave_steps,
+        "scale": args.scale, "orient": job.orient, "weights": job.weights, "concave steps": job.concave_steps, "spacing": job.spacing,
         "programmed point": "tool tip", "units": "mm",
     }
     with all_or_nothing(args.output, args.report, args.plot, args.html):

@@ -9,15 +9,24 @@ from __future__ import annotations
 
 from conformill.patterns.domains import Rings, Segment
 from conformill.patterns.pieces import Piece, domain_paths
+from conformill.patterns.warp import build_warp
 
 
-def plan_rings(planner, poly, delta: float, progress=None):
-    """The ring radii and curves of the contour family (also the spiral's skeleton)."""
+def plan_rings(planner, poly, delta: float, progress=None, adaptive: bool = True):
+    """The ring levels and curves of the contour family.
+
+    With ``adaptive`` the rings bend to follow the local step
+    (:mod:`conformill.patterns.warp`) and their ``s`` are levels in [0, 1]; without, they
+    are the paper's circles ``rho = s`` up to ``R0``.
+    """
     fam = Rings(poly, delta)
-    return fam, planner.run(fam, 0.0, poly.R0, progress=progress)
+    if not adaptive:
+        return fam, planner.run(fam, 0.0, poly.R0, progress=progress)
+    fam = Rings(poly, delta, warp=build_warp(planner, fam, 0.0, fam.end))
+    return fam, planner.run(fam, 0.0, 1.0, progress=progress)
 
 
-def plan_contour(planner, poly, delta: float, progress=None):
+def plan_contour(planner, poly, delta: float, progress=None, adaptive: bool = True):
     """Plan contour-parallel rings, centre outwards.
 
     Returns
@@ -25,7 +34,7 @@ def plan_contour(planner, poly, delta: float, progress=None):
     domain : conformill.types.DomainPaths
     pieces : list of Piece
     """
-    fam, (curves, realised, predicted, shrinks) = plan_rings(planner, poly, delta, progress)
+    fam, (curves, realised, predicted, shrinks) = plan_rings(planner, poly, delta, progress, adaptive)
     pieces = []
     for i, c in enumerate(curves):
         pieces.append(Piece("path", c, False, i))

@@ -16,19 +16,60 @@ from conformill.patterns.family import Family
 TWO_PI = 2.0 * np.pi
 
 
+MIN_CROSSING = 0.25  # floor of |det(a, t)| in a warped family's rate
+
+
+def _unit_tangent(P, tau, fallback):
+    """Unit tangents of the domain polyline ``P`` sampled at ``tau`` (finite differences)."""
+    if len(tau) < 2:
+        return fallback
+    d = np.gradient(P, tau, axis=0)
+    n = np.linalg.norm(d, axis=1, keepdims=True)
+    return np.where(n > 1e-300, d / np.maximum(n, 1e-300), fallback)
+
+
+def _cached(fam, tau):
+    """``dg/ds`` stored by the last ``along`` call on these very ``tau``, if any."""
+    last = getattr(fam, "_last", None)
+    return last[1] if last is not None and last[0] is tau else None
+
+
+def _warp_rate(a, t, dg):
+    """Domain distance moved across the curve per unit level: ``|det(a, t)| dg/ds``."""
+    det = np.abs(a[:, 0] * t[:, 1] - a[:, 1] * t[:, 0])
+    return np.maximum(det, MIN_CROSSING) * dg
+
+
 class IsoU(Family):
-    """Lines ``u = s`` of the rectangle domain, ``v = tau * Y``."""
+    """Lines ``u = s`` of the rectangle domain, ``v = tau * Y``.
+
+    With a ``warp`` (:class:`conformill.patterns.warp.Warp`), ``s`` is a level in [0, 1]
+    and the line is ``u = warp.offset(s, tau)``: adaptive spacing.
+    """
 
     closed = False
 
-    def __init__(self, Y: float, delta: float, reverse: bool = False):
+    def __init__(self, Y: float, delta: float, warp=None):
         self.Y = float(Y)
         self.delta = float(delta)
+        self.warp = warp
 
     def along(self, s, tau):
-        P = np.column_stack([np.full(len(tau), s), tau * self.Y])
-        t = np.tile([0.0, 1.0], (len(tau), 1))
-        return P, t
+        up = np.tile([0.0, 1.0], (len(tau), 1))
+        if self.warp is None:
+            return np.column_stack([np.broadcast_to(s, tau.shape), tau * self.Y]), up
+        u, dg = self.warp.offset(s, tau)
+        self._last = (tau, dg)
+        P = np.column_stack([u, tau * self.Y])
+        return P, _unit_tangent(P, tau, up)
+
+    def rate(self, s, tau, P, t):
+        if self.warp is None:
+            return None
+        dg = _cached(self, tau)
+        if dg is None:
+            _, dg = self.warp.offset(s, tau)
+        return _warp_rate(np.tile([1.0, 0.0], (len(tau), 1)), t, dg)
 
     def initial_tau(self, s):
         return np.linspace(0.0, 1.0, max(8, int(np.ceil(self.Y / self.delta))) + 1)
@@ -73,20 +114,28 @@ class BoundaryPolygon:
         self.ang = ang[order]
         self.pts = uvb[order]
         self.R0 = float(np.max(np.linalg.norm(uvb, axis=1)))
+        # each edge j -> j+1 (cyclic) as a line: distance p from the origin, normal angle phi;
+        # along direction theta the edge is at p / cos(theta - phi)
+        a, c = self.pts, np.roll(self.pts, -1, axis=0)
+        e = c - a
+        nrm = np.column_stack([e[:, 1], -e[:, 0]])
+        ln = np.linalg.norm(nrm, axis=1)
+        nrm = nrm / np.where(ln > 1e-300, ln, 1.0)[:, None]
+        p = np.einsum("ij,ij->i", a, nrm)
+        flip = p < 0
+        nrm[flip] *= -1.0
+        self._p = np.abs(p)
+        self._phi = np.arctan2(nrm[:, 1], nrm[:, 0])
+        self._ok = ln > 1e-300
 
     def limit(self, theta: np.ndarray) -> np.ndarray:
         """Distance from the origin to the polygon along direction ``theta``."""
         th = np.mod(theta, TWO_PI)
         b = len(self.ang)
-        j = np.searchsorted(self.ang, th, side="right") - 1  # edge j -> j+1 (cyclic)
-        a = self.pts[j % b]
-        c = self.pts[(j + 1) % b]
-        d = np.column_stack([np.cos(th), np.sin(th)])
-        # ray o + t d meets segment a + w (c - a): solve [d, a - c] [t, w] = a
-        e = c - a
-        det = d[:, 0] * (-e[:, 1]) - d[:, 1] * (-e[:, 0])
-        t = (a[:, 0] * (-e[:, 1]) - a[:, 1] * (-e[:, 0])) / np.where(np.abs(det) > 1e-300, det, 1e-300)
-        return np.where(np.isfinite(t) & (t > 0), t, self.R0)
+        j = (np.searchsorted(self.ang, th, side="right") - 1) % b  # edge j -> j+1 (cyclic)
+        cs = np.cos(th - self._phi[j])
+        t = self._p[j] / np.where(cs > 1e-300, cs, 1e-300)
+        return np.where(self._ok[j] & (cs > 1e-300) & (t > 0) & np.isfinite(t), t, self.R0)
 
     def clip(self, P: np.ndarray) -> np.ndarray:
         rho = np.linalg.norm(P, axis=1)
@@ -96,25 +145,58 @@ class BoundaryPolygon:
         return P * scale[:, None]
 
 
+def _largest_offset(fam, s):
+    """Largest base offset of curve ``s`` (levels map through the warp)."""
+    if fam.warp is None:
+        return float(s)
+    tau = np.linspace(0.0, 1.0, 129)
+    return float(np.max(fam.warp.offset(s, tau)[0]))
+
+
 class Rings(Family):
-    """Circles ``rho = s`` of the circle domain (clipped to the boundary polygon)."""
+    """Circles ``rho = s`` of the circle domain (clipped to the boundary polygon).
+
+    With a ``warp``, ``s`` is a level in [0, 1] and the ring is
+    ``rho = warp.offset(s, theta)``: adaptive spacing; level 1 is the boundary polygon.
+    """
 
     closed = True
 
-    def __init__(self, poly: BoundaryPolygon, delta: float, theta0: float = 0.0):
+    def __init__(self, poly: BoundaryPolygon, delta: float, theta0: float = 0.0, warp=None):
         self.poly = poly
         self.delta = float(delta)
         self.theta0 = float(theta0)
+        self.warp = warp
+
+    def end(self, tau):
+        """Base offset of the boundary along the rays ``tau``."""
+        return self.poly.limit(self.theta0 + TWO_PI * np.asarray(tau))
 
     def along(self, s, tau):
         th = self.theta0 + TWO_PI * tau
-        rho = np.minimum(s, self.poly.limit(th))
-        P = rho[:, None] * np.column_stack([np.cos(th), np.sin(th)])
-        t = np.column_stack([-np.sin(th), np.cos(th)])
-        return P, t
+        c, s_ = np.cos(th), np.sin(th)
+        circle = np.column_stack([-s_, c])
+        if self.warp is None:
+            rho = np.minimum(s, self.poly.limit(th))
+            return rho[:, None] * np.column_stack([c, s_]), circle
+        lim = self.poly.limit(th)
+        rho, dg = self.warp.offset(s, tau, end=lim)
+        self._last = (tau, dg)
+        rho = np.minimum(rho, lim)
+        P = rho[:, None] * np.column_stack([c, s_])
+        return P, _unit_tangent(P, tau, circle)
+
+    def rate(self, s, tau, P, t):
+        if self.warp is None:
+            return None
+        th = self.theta0 + TWO_PI * tau
+        dg = _cached(self, tau)
+        if dg is None:
+            _, dg = self.warp.offset(s, tau)
+        return _warp_rate(np.column_stack([np.cos(th), np.sin(th)]), t, dg)
 
     def initial_tau(self, s):
-        n = max(32, int(np.ceil(TWO_PI * s / self.delta)))
+        n = max(32, int(np.ceil(TWO_PI * _largest_offset(self, s) / self.delta)))
         return np.linspace(0.0, 1.0, n + 1)
 
 
@@ -123,24 +205,42 @@ class SpiralTurn(Family):
 
     closed = False
 
-    def __init__(self, poly: BoundaryPolygon, r0: float, r1: float, delta: float, theta0: float = 0.0):
+    def __init__(self, poly: BoundaryPolygon, r0: float, r1: float, delta: float, theta0: float = 0.0,
+                 warp=None):
         self.poly = poly
         self.r0, self.r1 = float(r0), float(r1)
         self.delta = float(delta)
         self.theta0 = float(theta0)
+        self.warp = warp
 
     def along(self, s, tau):
         th = self.theta0 + TWO_PI * tau
         rho_raw = self.r0 + tau * (self.r1 - self.r0)
-        rho = np.minimum(rho_raw, self.poly.limit(th))
         c, s_ = np.cos(th), np.sin(th)
+        lim = self.poly.limit(th)
+        if self.warp is not None:  # r0, r1 are levels
+            rho_raw, dg = self.warp.offset(rho_raw, tau, end=lim)
+            self._last = (tau, dg)
+        rho = np.minimum(rho_raw, lim)
         P = rho[:, None] * np.column_stack([c, s_])
+        if self.warp is not None:
+            return P, _unit_tangent(P, tau, np.column_stack([-s_, c]))
         dr = self.r1 - self.r0
         t = np.column_stack([dr * c - TWO_PI * rho * s_, dr * s_ + TWO_PI * rho * c])
         nt = np.linalg.norm(t, axis=1, keepdims=True)
         t = np.where(nt > 1e-300, t / np.maximum(nt, 1e-300), np.column_stack([-s_, c]))
         return P, t
 
+    def rate(self, s, tau, P, t):
+        if self.warp is None:
+            return None
+        th = self.theta0 + TWO_PI * tau
+        dg = _cached(self, tau)
+        if dg is None:
+            _, dg = self.warp.offset(self.r0 + tau * (self.r1 - self.r0), tau)
+        return _warp_rate(np.column_stack([np.cos(th), np.sin(th)]), t, dg)
+
     def initial_tau(self, s):
-        n = max(32, int(np.ceil(TWO_PI * max(self.r1, 1e-12) / self.delta)))
+        r1 = self.r1 if self.warp is None else float(np.max(self.warp.offset(self.r1, np.linspace(0, 1, 129))[0]))
+        n = max(32, int(np.ceil(TWO_PI * max(r1, 1e-12) / self.delta)))
         return np.linspace(0.0, 1.0, n + 1)

@@ -170,27 +170,34 @@ def pair_distances(a, b, closed: bool = False):
 class Curve:
     """One evaluated domain curve: dense samples and the surface there."""
 
-    __slots__ = ("s", "tau", "sample", "t", "ls", "reach")
+    __slots__ = ("s", "tau", "sample", "t", "ls", "reach", "rate")
 
-    def __init__(self, s, tau, sample, t, ls, reach):
+    def __init__(self, s, tau, sample, t, ls, reach, rate=None):
         self.s = s
         self.tau = tau
         self.sample = sample
         self.t = t
         self.ls = ls
         self.reach = reach
+        # how fast the curve moves across itself per unit of ``s``, in units of the base
+        # domain direction (1 for the paper's iso-lines; see conformill.patterns.warp)
+        self.rate = np.ones(len(tau)) if rate is None else rate
 
 
 class Family:
     """Base class of an offset family; subclasses define the domain geometry.
 
     Subclasses implement ``along(s, tau) -> (P, t)``: domain points ``(k, 2)`` and unit
-    domain tangents ``(k, 2)`` at along-parameters ``tau`` in [0, 1], with the offset
-    direction ``s`` increasing to the left... of no importance: only |det(a, t)| = 1 is
-    used, with ``a`` the unit domain direction of increasing ``s``.
+    domain tangents ``(k, 2)`` at along-parameters ``tau`` in [0, 1]. A warped family
+    (:mod:`conformill.patterns.warp`) also implements ``rate(s, tau, P, t)``: the domain
+    distance a point moves across the curve per unit of ``s``; for the paper's iso-lines it
+    is 1 and the method returns ``None``.
     """
 
     closed = False
+
+    def rate(self, s, tau, P, t):
+        return None
 
     def along(self, s, tau):  # pragma: no cover - abstract
         raise NotImplementedError
@@ -243,6 +250,15 @@ class Planner:
             tau = np.sort(np.concatenate([tau, extra]))
         P, t = family.along(s, tau)
         S = self.surface.sample(P)
+        ls, reach = self.allowed(S, t)
+        return Curve(s, tau, S, t, ls, reach, family.rate(s, tau, P, t))
+
+    def allowed(self, S, t):
+        """Allowed side interval ``l_s`` (mm) across domain tangents ``t`` at samples ``S``.
+
+        Returns ``(ls, reach)``; ``reach`` is False where the ball cannot follow the
+        concave curvature across the path.
+        """
         kappa = S.curvature(S.across(t))
         # Where the path is concave along its direction, its straight moves ride above the
         # surface by up to the forward chord tolerance (or kappa L_max^2 / 8 when the
@@ -257,12 +273,12 @@ class Planner:
         ls = np.asarray(ls, dtype=np.float64)
         if self.concave_cap is not None:
             ls = np.minimum(ls, self.concave_cap)
-        return Curve(s, tau, S, t, ls, np.asarray(reach, dtype=bool))
+        return ls, np.asarray(reach, dtype=bool)
 
     def domain_steps(self, c: Curve) -> np.ndarray:
-        """Domain step across the curve at each sample: ``l_s |r_t| / sqrt(EG - F^2)``."""
+        """Step in ``s`` allowed at each sample: ``l_s |r_t| / (sqrt(EG - F^2) rate)``."""
         S = c.sample
-        return c.ls * S.length(c.t) / S.area_factor()
+        return c.ls * S.length(c.t) / (S.area_factor() * c.rate)
 
     # -- the family ---------------------------------------------------------------
     def run(self, family: Family, s0: float, s_max: float, max_paths: int = 200000, progress=None):
@@ -306,7 +322,7 @@ class Planner:
             else:
                 log.warning("3D spacing check did not converge at offset %.6g (ratio %.3f)", cur.s, ratio)
             realised.append(d_fwd)
-            predicted.append(cur.sample.area_factor() / cur.sample.length(cur.t) * (s_next - cur.s))
+            predicted.append(cur.sample.area_factor() / cur.sample.length(cur.t) * cur.rate * (s_next - cur.s))
             curves.append(nxt)
             cur = nxt
             if progress is not None:

@@ -1,29 +1,50 @@
 """One continuous spiral on the circle domain (METHOD section 5).
 
-Between consecutive rings ``rho_k < rho_{k+1}`` of the contour plan,
-``rho(theta) = rho_k + theta / (2 pi) (rho_{k+1} - rho_k)``; the revolutions are chained
-and end with one turn on the boundary. Because a revolution lies between two rings, the
-gap between consecutive revolutions is checked in 3D like the rings' were; where it is
-too wide a ring is inserted halfway and the spiral rebuilt.
+The paper interpolates between consecutive rings of the contour plan,
+``rho(theta) = rho_k + theta / (2 pi) (rho_{k+1} - rho_k)``. A revolution then lies
+*between* two rings and its gap to the next revolution mixes two ring steps, so it is not
+covered by the rings' spacing check; inserting a ring wherever it failed made the spiral
+1.6x the length of the contour plan on a face scan (igea, h = 0.01).
+
+Here the revolutions are planned directly, one after the other, like the rings: revolution
+``k`` runs from offset ``a_k`` to ``a_{k+1}`` (offsets or warped levels, see
+:mod:`conformill.patterns.warp`), so the gap to revolution ``k + 1`` at along-parameter
+``tau`` is ``(1 - tau) D + tau E`` with ``D = a_{k+1} - a_k`` already fixed and
+``E = a_{k+2} - a_{k+1}`` to choose. ``E`` is the largest value the allowed step at every
+sample of revolution ``k`` admits; then the same two-way 3D spacing check as the rings'
+shrinks ``E`` (or, where the fault is in the first half of the revolution, which ``E``
+cannot mend, shrinks ``D`` and plans revolution ``k`` again). The last revolution reaches
+the boundary and is followed by one turn on it.
 """
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 
-from conformill.patterns.contour import plan_rings
+from conformill.errors import PlanningError
 from conformill.patterns.domains import Rings, SpiralTurn
 from conformill.patterns.family import pair_distances
 from conformill.patterns.pieces import Piece, domain_paths
+from conformill.patterns.warp import build_warp
+
+log = logging.getLogger(__name__)
+
+TOL = 1.0 + 1e-9
 
 
-def _turns(planner, poly, radii, delta):
-    turns = [planner.evaluate(SpiralTurn(poly, radii[k], radii[k + 1], delta), radii[k]) for k in range(len(radii) - 1)]
-    turns.append(planner.evaluate(Rings(poly, delta), radii[-1]))  # the boundary turn
-    return turns
+def _next_gap(planner, turn, D: float) -> float:
+    """Largest ``E`` with ``(1 - tau) D + tau E`` within the allowed step of ``turn``."""
+    g = planner.domain_steps(turn)
+    tau = turn.tau
+    ok = np.isfinite(g) & (tau > 0.05)
+    if not ok.any():
+        return D
+    return float(np.min((g[ok] - (1.0 - tau[ok]) * D) / tau[ok]))
 
 
-def plan_spiral(planner, poly, delta: float, progress=None, max_rounds: int = 4):
+def plan_spiral(planner, poly, delta: float, progress=None, adaptive: bool = True, max_turns: int = 200000):
     """Plan a single spiral pass from the centre to the boundary.
 
     Returns
@@ -32,24 +53,81 @@ def plan_spiral(planner, poly, delta: float, progress=None, max_rounds: int = 4)
     pieces : list of Piece
         One path per revolution, with no links: each revolution starts where the last ended.
     """
-    _, (rings, _, _, shrinks) = plan_rings(planner, poly, delta, progress)
-    radii = np.array([c.s for c in rings])
-    for _ in range(max_rounds):
-        turns = _turns(planner, poly, radii, delta)
-        realised, predicted, bad = [], [], set()
-        for k in range(len(turns) - 1):
-            a, b = turns[k], turns[k + 1]
-            d_fwd, ratio = pair_distances(a, b)
-            realised.append(d_fwd)
-            step = np.interp(a.tau, [0.0, 1.0], [radii[min(k + 1, len(radii) - 1)] - radii[k],
-                                                  radii[min(k + 2, len(radii) - 1)] - radii[min(k + 1, len(radii) - 1)]])
-            predicted.append(a.sample.area_factor() / a.sample.length(a.t) * step)
-            if ratio > 1.0 + 1e-9:
-                bad.update({k, k + 1})
-        if not bad:
-            break
-        new = [0.5 * (radii[k] + radii[k + 1]) for k in sorted(bad) if k + 1 < len(radii)]
-        shrinks += len(new)
-        radii = np.unique(np.concatenate([radii, new]))
+    rings = Rings(poly, delta)
+    warp, s_end = None, poly.R0
+    if adaptive:
+        warp, s_end = build_warp(planner, rings, 0.0, rings.end), 1.0
+        rings = Rings(poly, delta, warp=warp)
+    min_gap = s_end * 1e-7
+
+    def turn(a, b):
+        return planner.evaluate(SpiralTurn(poly, a, b, delta, warp=warp), a)
+
+    centre = planner.evaluate(rings, 0.0)
+    D = min(float(np.min(planner.domain_steps(centre))), s_end)
+    levels = [0.0, D]
+    turns = [turn(0.0, D)]
+    realised, predicted = [], []
+    shrinks = 0
+    done = False
+    while not done:
+        if len(turns) > max_turns:
+            raise PlanningError(f"more than {max_turns} revolutions: the scallop height is too small for this part")
+        cur = turns[-1]
+        a0, a1 = levels[-2], levels[-1]
+        D = a1 - a0
+        if a1 >= s_end:  # the last revolution reached the boundary: one turn on it
+            nxt = planner.evaluate(rings, s_end)
+            E = 0.0
+        else:
+            E = min(max(_next_gap(planner, cur, D), 0.0), s_end - a1)
+            nxt = None
+        trust = 1.0
+        for _ in range(16):
+            if nxt is None:
+                if E <= min_gap:
+                    break
+                nxt = turn(a1, a1 + E)
+            d_fwd, ratio = pair_distances(cur, nxt)
+            if ratio <= TOL:
+                break
+            shrinks += 1
+            k = int(np.argmax(d_fwd / cur.ls))
+            tw = float(cur.tau[k])
+            # the gap at the worst sample, brought within bounds by E alone if it can be
+            gap = (1.0 - tw) * D + tw * E
+            E_new = (gap * min(0.995 / ratio, 0.999) - (1.0 - tw) * D) / tw if tw > 0.05 else -1.0
+            if E_new > 0.1 * D or (E > min_gap and E_new > min_gap):
+                E = min(E_new, E * 0.999)
+            else:
+                # the first part of this revolution is too far out: plan it again, closer,
+                # and trust the linear step less for the next one
+                trust *= min(0.995 / ratio, 0.9)
+                D = D * min(0.995 / ratio, 0.9)
+                if D <= min_gap:
+                    raise PlanningError(f"spiral step collapsed at offset {a0:.6g}: degenerate surface frame")
+                a1 = a0 + D
+                levels[-1] = a1
+                cur = turns[-1] = turn(a0, a1)
+                if realised:  # the previous gap only narrowed; refresh its figures
+                    realised[-1], _ = pair_distances(turns[-2], cur)
+                E = min(max(trust * _next_gap(planner, cur, D), 0.0), s_end - a1)
+            nxt = None
+        else:
+            log.warning("spiral spacing check did not converge at offset %.6g (ratio %.3f)", a1, ratio)
+        if nxt is None:  # E collapsed: step at least a little
+            E = max(E, min_gap)
+            nxt = turn(a1, min(a1 + E, s_end))
+            d_fwd, _ = pair_distances(cur, nxt)
+        realised.append(d_fwd)
+        step = (1.0 - cur.tau) * D + cur.tau * E
+        predicted.append(cur.sample.area_factor() / cur.sample.length(cur.t) * cur.rate * step)
+        turns.append(nxt)
+        if a1 >= s_end:
+            done = True
+        else:
+            levels.append(min(a1 + E, s_end))
+        if progress is not None:
+            progress(min(levels[-1] / s_end, 1.0))
     pieces = [Piece("path", t, False, i) for i, t in enumerate(turns)]
     return domain_paths("spiral", turns, realised, predicted, shrinks, closed=False), pieces

@@ -7,11 +7,14 @@ the part's boundary, so a link stays on the surface.
 
 from __future__ import annotations
 
+import numpy as np
+
 from conformill.patterns.domains import IsoU, Segment
 from conformill.patterns.pieces import Piece, domain_paths
+from conformill.patterns.warp import build_warp
 
 
-def plan_zigzag(planner, X: float, Y: float, delta: float, progress=None):
+def plan_zigzag(planner, X: float, Y: float, delta: float, progress=None, adaptive: bool = True):
     """Plan zigzag paths.
 
     Parameters
@@ -21,20 +24,26 @@ def plan_zigzag(planner, X: float, Y: float, delta: float, progress=None):
         Rectangle domain size.
     delta : float
         Initial domain sampling step.
+    adaptive : bool
+        Rows bend to follow the local step (:mod:`conformill.patterns.warp`); False gives
+        the paper's iso-u lines spaced by the minimum step over each line.
 
     Returns
     -------
     domain : conformill.types.DomainPaths
     pieces : list of Piece
     """
-    fam = IsoU(Y, delta)
-    curves, realised, predicted, shrinks = planner.run(fam, 0.0, X, progress=progress)
+    fam, s_end = IsoU(Y, delta), X
+    if adaptive:
+        fam = IsoU(Y, delta, warp=build_warp(planner, fam, 0.0, lambda tau: np.full(np.shape(tau), float(X))))
+        s_end = 1.0
+    curves, realised, predicted, shrinks = planner.run(fam, 0.0, s_end, progress=progress)
     pieces = []
     for i, c in enumerate(curves):
         rev = i % 2 == 1
         pieces.append(Piece("path", c, rev, i))
         if i + 1 < len(curves):
-            v = 0.0 if rev else Y
-            link = Segment((c.s, v), (curves[i + 1].s, v), delta)
+            end = 0 if rev else -1  # along the side v = 0 or v = Y
+            link = Segment(c.sample.uv[end], curves[i + 1].sample.uv[end], delta)
             pieces.append(Piece("link", planner.evaluate(link, 0.0), False, i))
     return domain_paths("zigzag", curves, realised, predicted, shrinks, closed=False), pieces

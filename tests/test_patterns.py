@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from conformill.patterns.domains import BoundaryPolygon
-from conformill.patterns.family import point_polyline_distance
+from conformill.patterns.family import curve_distance, point_polyline_distance
 from conformill.patterns.forward import chord_deviation, select_forward
 
 
@@ -21,6 +21,23 @@ def test_point_polyline_distance_matches_brute_force():
     np.testing.assert_allclose(d, brute, atol=1e-12)
 
 
+def test_curve_distance_between_spiral_revolutions_is_exact_away_from_the_seam():
+    # two consecutive revolutions of an Archimedean spiral meet at their ends; the walk must
+    # follow the neighbouring revolution, not the continuation of the curve
+    def turn(k, n=3000):
+        th = np.linspace(0, 2 * np.pi, n)
+        rho = 10.0 + 0.5 * (k + th / (2 * np.pi))
+        return np.column_stack([rho * np.cos(th), rho * np.sin(th), 0.01 * rho**2])
+
+    a, b = turn(0), turn(1, 3500)
+    for P, Q in ((a, b), (b, a)):
+        d = curve_distance(P, Q)
+        exact = point_polyline_distance(P, Q)
+        assert np.all(d >= exact - 1e-12)  # never shorter than the truth (the check stays strict)
+        inner = slice(len(P) // 20, len(P) - len(P) // 20)
+        np.testing.assert_allclose(d[inner], exact[inner], atol=1e-9)
+
+
 @pytest.mark.parametrize("R", [5.0, 20.0, 100.0])
 def test_select_forward_on_circle_meets_tolerance_and_sagitta_step(R):
     e = 0.01
@@ -34,6 +51,24 @@ def test_select_forward_on_circle_meets_tolerance_and_sagitta_step(R):
     assert steps.max() <= lf * (1 + 1e-3)
     # not wastefully short: the equidistributed steps are close to the limit
     assert np.median(steps) > 0.9 * lf
+
+
+def test_select_forward_convex_and_concave_halves_get_their_own_tolerance():
+    # a circle walked half convex (kappa < 0), half concave (kappa > 0): chords on the
+    # convex half may deviate up to e_convex, those touching the concave half only e
+    R, e, ec = 20.0, 0.0025, 0.005
+    th = np.linspace(0, np.pi / 2, 20001)
+    X = np.column_stack([R * np.cos(th), R * np.sin(th), np.zeros_like(th)])
+    kappa = np.where(th < np.pi / 4, -1.0 / R, 1.0 / R)
+    idx = select_forward(X, kappa, e, max_step=50.0, e_convex=ec)
+    dev, _ = chord_deviation(X, idx)
+    convex = th[idx[1:]] < np.pi / 4  # chords whose both ends (and all samples) are convex
+    assert dev[convex].max() <= ec + 1e-12
+    assert dev[~convex].max() <= e + 1e-12
+    steps = np.linalg.norm(np.diff(X[idx], axis=0), axis=1)
+    lf = lambda tol: 2 * np.sqrt(tol * (2 * R - tol))  # noqa: E731
+    assert np.median(steps[convex]) > 0.9 * lf(ec) and steps[convex].max() <= lf(ec) * (1 + 1e-3)
+    assert steps[~convex].max() <= lf(e) * (1 + 1e-3)
 
 
 def test_select_forward_catches_a_crease_the_curvature_misses():

@@ -284,6 +284,9 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
     # off h where the path is concave along its direction (face sample, h = 0.1: reachable
     # p99.9 1.06 H -> see README).
     e_fwd = min(e, 0.25 * h)
+    # Where the path is convex along its direction the chord dips into the part instead:
+    # only the gouge budget bounds it, and the cutter stage checks every move against e/2.
+    e_cvx = max(e_fwd, 0.5 * e)
     planner = Planner(surface, params, seg_len, concave_cap=flat_ls if job.concave_steps == "flat" else None,
                       rise_tol=e_fwd, max_step=job.max_step)
 
@@ -312,7 +315,7 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
             order = slice(None, None, -1) if pc.reverse else slice(None)
             X3 = S.xyz[order]
             kap = S.curvature(c.t)[order]
-            idx = select_forward(X3, kap, e_fwd, job.max_step)
+            idx = select_forward(X3, kap, e_fwd, job.max_step, e_convex=e_cvx)
             # the fitted (smooth) normal: with the facet's the contact would sit exactly on
             # the CC point, but the centre path would jitter at every edge; measured, it
             # changes the scallop by less than 1 % (cad_like_0, h = 0.01)
@@ -370,7 +373,7 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
         "job": {"pattern": job.pattern, "tool_radius": r, "scallop": h, "tolerance": e, "feed": job.feed,
                 "plunge_feed": job.plunge_feed or job.feed / 3, "safe_z": safe_z, "orient": job.orient,
                 "weights": job.weights, "max_step": job.max_step, "link_max": link_max,
-                "forward_chord_tolerance": e_fwd,
+                "forward_chord_tolerance": e_fwd, "forward_chord_tolerance_convex": e_cvx,
                 "concave_steps": job.concave_steps, "spacing": job.spacing},
         "orientation": orient_info,
         "parameterization": {"boundary": param.kind, "domain": param.domain, "corners": param.corners,

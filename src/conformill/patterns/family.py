@@ -41,13 +41,21 @@ def _seg_d2(px, py, pz, Q, a, b):
 def _walk_distance(P, Q, closed, window):
     k, q = P.shape[0], Q.shape[0]
     out = np.empty(k)
-    j = 0
+    # the middle point: exhaustive; then walk to the end, and from the middle to the start
+    # (two neighbouring revolutions of a spiral meet at their ends, where a walk begun at
+    # the first point would follow the wrong one)
+    mid = k // 2
+    j0 = 0
     best = np.inf
-    for m in range(q):  # the first point: exhaustive
-        d = (P[0, 0] - Q[m, 0]) ** 2 + (P[0, 1] - Q[m, 1]) ** 2 + (P[0, 2] - Q[m, 2]) ** 2
+    for m in range(q):
+        d = (P[mid, 0] - Q[m, 0]) ** 2 + (P[mid, 1] - Q[m, 1]) ** 2 + (P[mid, 2] - Q[m, 2]) ** 2
         if d < best:
-            best, j = d, m
-    for i in range(k):
+            best, j0 = d, m
+    j = j0
+    for n in range(k):
+        if n == k - mid:
+            j = j0
+        i = mid + n if n < k - mid else k - 1 - n
         px, py, pz = P[i, 0], P[i, 1], P[i, 2]
         # walk along Q from the previous nearest vertex, then look a window around it
         best = (px - Q[j, 0]) ** 2 + (py - Q[j, 1]) ** 2 + (pz - Q[j, 2]) ** 2
@@ -232,9 +240,13 @@ class Planner:
         self.max_step = float(max_step)
 
     # -- evaluation ---------------------------------------------------------------
-    def evaluate(self, family: Family, s: float, max_rounds: int = 6) -> Curve:
-        """Sample curve ``s`` densely enough that 3D gaps are below ``seg_len``."""
-        tau = family.initial_tau(s)
+    def evaluate(self, family: Family, s: float, max_rounds: int = 6, tau: np.ndarray | None = None) -> Curve:
+        """Sample curve ``s`` densely enough that 3D gaps are below ``seg_len``.
+
+        ``tau`` may give the along-parameters to start from (those of a neighbouring
+        curve of the same family, which usually need no refinement).
+        """
+        tau = family.initial_tau(s) if tau is None else tau
         for _ in range(max_rounds):
             P, t = family.along(s, tau)
             S = self.surface.sample(P)
@@ -248,8 +260,9 @@ class Planner:
             j = np.arange(owner.size) - np.repeat(np.cumsum(k - 1) - (k - 1), k - 1) + 1
             extra = tau[owner] + (tau[owner + 1] - tau[owner]) * (j / m)
             tau = np.sort(np.concatenate([tau, extra]))
-        P, t = family.along(s, tau)
-        S = self.surface.sample(P)
+        else:
+            P, t = family.along(s, tau)
+            S = self.surface.sample(P)
         ls, reach = self.allowed(S, t)
         return Curve(s, tau, S, t, ls, reach, family.rate(s, tau, P, t))
 
@@ -305,16 +318,19 @@ class Planner:
                     f"more than {max_paths} paths: the scallop height is too small for this part"
                 )
             steps = self.domain_steps(cur)
-            step = float(np.min(steps))
-            if not np.isfinite(step) or step <= min_step:
+            base = float(np.min(steps))
+            if not np.isfinite(base) or base <= min_step:
                 raise PlanningError(
-                    f"side step collapsed to {step:.3g} at offset {cur.s:.6g}: "
+                    f"side step collapsed to {base:.3g} at offset {cur.s:.6g}: "
                     "degenerate surface frame (check the mesh for slivers)"
                 )
+            step = base
+            hint = None
             for _ in range(12):
                 s_next = min(cur.s + step, s_max)
-                nxt = self.evaluate(family, s_next)
+                nxt = self.evaluate(family, s_next, tau=hint)
                 d_fwd, ratio = pair_distances(cur, nxt, family.closed)
+                hint = nxt.tau
                 if ratio <= 1.0 + 1e-9:
                     break
                 shrinks += 1

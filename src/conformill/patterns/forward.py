@@ -6,6 +6,12 @@ never exceeds ``l_f`` (equidistribution of ``ds / l_f``), and then every chord i
 against the dense samples it skips: where one deviates by more than ``e``, the sample
 farthest from the chord is added (so the guarantee holds on the mesh, creases included,
 not only where the quadratic fit is right).
+
+The tolerance may differ by side: where the path is concave along its direction a chord
+rides *above* the surface and the material it leaves adds to the scallop, so it gets the
+tight tolerance; where it is convex the chord dips *into* the part, which only the gouge
+budget bounds (and the cutter stage checks every move against it), so it may get a wider
+one (``e_convex``).
 """
 
 from __future__ import annotations
@@ -50,7 +56,8 @@ def chord_deviation(X: np.ndarray, idx: np.ndarray):
     return dev, arg
 
 
-def select_forward(X: np.ndarray, kappa: np.ndarray, e: float, max_step: float, max_rounds: int = 30):
+def select_forward(X: np.ndarray, kappa: np.ndarray, e: float, max_step: float, max_rounds: int = 30,
+                   e_convex: float | None = None):
     """Indices of the dense samples kept as cutter-contact points.
 
     Parameters
@@ -58,11 +65,14 @@ def select_forward(X: np.ndarray, kappa: np.ndarray, e: float, max_step: float, 
     X : (k, 3) float64
         Dense CC samples of the path (mm).
     kappa : (k,) float64
-        Normal curvature along the path at the samples.
+        Normal curvature along the path at the samples (> 0 concave).
     e : float
         Chord deviation tolerance (mm).
     max_step : float
         Longest step allowed on flat ground (mm).
+    e_convex : float, optional
+        Tolerance where the path is convex along its direction (``kappa < 0``); a chord
+        that skips a concave or flat sample keeps ``e``. Default ``e``.
 
     Returns
     -------
@@ -72,7 +82,10 @@ def select_forward(X: np.ndarray, kappa: np.ndarray, e: float, max_step: float, 
     k = len(X)
     if k <= 2:
         return np.arange(k, dtype=np.int64)
-    lf = forward_step(e, kappa, max_step)
+    tol = np.full(k, float(e))
+    if e_convex is not None:
+        tol[np.asarray(kappa) < 0] = float(e_convex)
+    lf = forward_step(tol, kappa, max_step)
     seg = np.linalg.norm(np.diff(X, axis=0), axis=1)
     lf_mid = np.minimum(lf[:-1], lf[1:])
     N = np.concatenate([[0.0], np.cumsum(seg / lf_mid)])
@@ -85,7 +98,10 @@ def select_forward(X: np.ndarray, kappa: np.ndarray, e: float, max_step: float, 
     # make sure no chord skips more length than allowed where equidistribution was coarse
     for _ in range(max_rounds):
         dev, arg = chord_deviation(X, idx)
-        bad = dev > e
+        # a chord's tolerance is the tightest over the samples it spans, ends included
+        lim = np.minimum.reduceat(tol, idx[:-1])
+        lim = np.minimum(lim, tol[idx[1:]])
+        bad = dev > lim
         if not bad.any():
             break
         idx = np.unique(np.concatenate([idx, arg[bad]]))

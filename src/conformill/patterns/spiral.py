@@ -34,9 +34,9 @@ log = logging.getLogger(__name__)
 TOL = 1.0 + 1e-9
 
 
-def _next_gap(planner, turn, D: float) -> float:
-    """Largest ``E`` with ``(1 - tau) D + tau E`` within the allowed step of ``turn``."""
-    g = planner.domain_steps(turn)
+def _next_gap(planner, turn, D: float, trust: float = 1.0) -> float:
+    """Largest ``E`` with ``(1 - tau) D + tau E`` within ``trust`` x the allowed step of ``turn``."""
+    g = trust * planner.domain_steps(turn)
     tau = turn.tau
     ok = np.isfinite(g) & (tau > 0.05)
     if not ok.any():
@@ -70,6 +70,7 @@ def plan_spiral(planner, poly, delta: float, progress=None, adaptive: bool = Tru
     realised, predicted = [], []
     shrinks = 0
     done = False
+    trust = 1.0  # share of the linear step the 3D check lets through, carried from turn to turn
     while not done:
         if len(turns) > max_turns:
             raise PlanningError(f"more than {max_turns} revolutions: the scallop height is too small for this part")
@@ -80,9 +81,9 @@ def plan_spiral(planner, poly, delta: float, progress=None, adaptive: bool = Tru
             nxt = planner.evaluate(rings, s_end)
             E = 0.0
         else:
-            E = min(max(_next_gap(planner, cur, D), 0.0), s_end - a1)
+            E = min(max(_next_gap(planner, cur, D, trust), 0.0), s_end - a1)
             nxt = None
-        trust = 1.0
+        first = True
         for _ in range(16):
             if nxt is None:
                 if E <= min_gap:
@@ -90,7 +91,10 @@ def plan_spiral(planner, poly, delta: float, progress=None, adaptive: bool = Tru
                 nxt = turn(a1, a1 + E)
             d_fwd, ratio = pair_distances(cur, nxt)
             if ratio <= TOL:
+                if first:  # let the trust recover where the linear step holds
+                    trust = min(1.0, trust * 0.995 / max(ratio, 0.5))
                 break
+            first = False
             shrinks += 1
             k = int(np.argmax(d_fwd / cur.ls))
             tw = float(cur.tau[k])
@@ -98,6 +102,7 @@ def plan_spiral(planner, poly, delta: float, progress=None, adaptive: bool = Tru
             gap = (1.0 - tw) * D + tw * E
             E_new = (gap * min(0.995 / ratio, 0.999) - (1.0 - tw) * D) / tw if tw > 0.05 else -1.0
             if E_new > 0.1 * D or (E > min_gap and E_new > min_gap):
+                trust *= min(0.995 / ratio, 0.999)
                 E = min(E_new, E * 0.999)
             else:
                 # the first part of this revolution is too far out: plan it again, closer,
@@ -111,7 +116,7 @@ def plan_spiral(planner, poly, delta: float, progress=None, adaptive: bool = Tru
                 cur = turns[-1] = turn(a0, a1)
                 if realised:  # the previous gap only narrowed; refresh its figures
                     realised[-1], _ = pair_distances(turns[-2], cur)
-                E = min(max(trust * _next_gap(planner, cur, D), 0.0), s_end - a1)
+                E = min(max(_next_gap(planner, cur, D, trust), 0.0), s_end - a1)
             nxt = None
         else:
             log.warning("spiral spacing check did not converge at offset %.6g (ratio %.3f)", a1, ratio)

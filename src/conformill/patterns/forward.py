@@ -17,8 +17,32 @@ one (``e_convex``).
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 from conformill.planning.steps import forward_step
+
+
+@njit(cache=True)
+def _chord_deviation(X, idx):
+    k, m = X.shape[0], idx.shape[0]
+    dev = np.zeros(m - 1)
+    arg = np.zeros(m - 1, dtype=np.int64)
+    for j in range(m - 1):
+        a, b = idx[j], idx[j + 1]
+        end = b if j < m - 2 else k
+        ax, ay, az = X[a, 0], X[a, 1], X[a, 2]
+        ux, uy, uz = X[b, 0] - ax, X[b, 1] - ay, X[b, 2] - az
+        uu = max(ux * ux + uy * uy + uz * uz, 1e-300)
+        best, barg = -1.0, a
+        for i in range(a, end):
+            wx, wy, wz = X[i, 0] - ax, X[i, 1] - ay, X[i, 2] - az
+            t = min(max((wx * ux + wy * uy + wz * uz) / uu, 0.0), 1.0)
+            dx, dy, dz = wx - t * ux, wy - t * uy, wz - t * uz
+            d = np.sqrt(dx * dx + dy * dy + dz * dz)
+            if d > best:  # the first sample of the largest distance
+                best, barg = d, i
+        dev[j], arg[j] = best, barg
+    return dev, arg
 
 
 def chord_deviation(X: np.ndarray, idx: np.ndarray):
@@ -36,24 +60,13 @@ def chord_deviation(X: np.ndarray, idx: np.ndarray):
     dev : (m - 1,) float64
         Max distance of ``X[idx[j] .. idx[j+1]]`` from the chord ``X[idx[j]] X[idx[j+1]]``.
     arg : (m - 1,) int64
-        Index in ``X`` of the farthest sample of each chord.
+        Index in ``X`` of the farthest sample of each chord (the first, on ties).
     """
-    k = len(X)
-    seg_of = np.searchsorted(idx, np.arange(k), side="right") - 1
-    seg_of = np.clip(seg_of, 0, len(idx) - 2)
-    a = X[idx[seg_of]]
-    b = X[idx[seg_of + 1]]
-    ab = b - a
-    t = np.einsum("ij,ij->i", X - a, ab) / np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-300)
-    t = np.clip(t, 0.0, 1.0)
-    d = np.linalg.norm(X - (a + t[:, None] * ab), axis=1)
-    starts = idx[:-1]
-    dev = np.maximum.reduceat(d, starts) if len(starts) else np.zeros(0)
-    # argmax per segment: sort by (segment, -d)
-    order = np.lexsort((-d, seg_of))
-    first = np.searchsorted(seg_of[order], np.arange(len(starts)))
-    arg = order[np.clip(first, 0, k - 1)]
-    return dev, arg
+    X = np.ascontiguousarray(X, dtype=np.float64)
+    idx = np.ascontiguousarray(idx, dtype=np.int64)
+    if len(idx) < 2:
+        return np.zeros(0), np.zeros(0, dtype=np.int64)
+    return _chord_deviation(X, idx)
 
 
 def select_forward(X: np.ndarray, kappa: np.ndarray, e: float, max_step: float, max_rounds: int = 30,

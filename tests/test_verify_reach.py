@@ -46,3 +46,22 @@ def test_overhang_and_downward_normals_are_unreachable():
 
     down = SurfaceSamples.from_arrays(S2.points, -S2.normals)
     assert unreachable_samples(down, m2.V, 1.0, 0.01).all()
+
+
+def test_shank_test_is_exact_at_the_edge_of_an_overhang():
+    # a roof of points at z = 5 over x, y in [-5, 5]; a 1 mm ball touching the plane z = 0
+    # at (x, 0): its shank (radius 1) passes under the roof edge (5, 0, 5) exactly when
+    # x - 5 < r - depth. The earlier height-map test, shrunk by a cell diagonal, let the
+    # band 0.81 < x - 5 < 0.99 through.
+    from conformill.verify.samples import SurfaceSamples
+
+    g = np.linspace(-5, 5, 21)
+    roof = np.column_stack([np.repeat(g, 21), np.tile(g, 21), np.full(441, 5.0)])
+    x = np.linspace(5.0 + 1e-6, 7.0, 401)
+    P = np.column_stack([x, np.zeros_like(x), np.zeros_like(x)])
+    S = SurfaceSamples.from_arrays(P, np.tile([0.0, 0.0, 1.0], (len(x), 1)))
+    plane_pts = np.column_stack([np.repeat(np.linspace(-10, 10, 81), 81), np.tile(np.linspace(-10, 10, 81), 81),
+                                 np.zeros(81 * 81)])
+    bad = unreachable_samples(S, np.vstack([plane_pts, roof]), 1.0, 0.01)
+    expected = (x - 5.0) < 1.0 - 0.01
+    assert np.array_equal(bad, expected)

@@ -81,10 +81,26 @@ def plan_spiral(planner, poly, delta: float, progress=None, adaptive: bool = Tru
             nxt = planner.evaluate(rings, s_end)
             E = 0.0
         else:
-            E = min(max(_next_gap(planner, cur, D, trust), 0.0), s_end - a1)
+            E = _next_gap(planner, cur, D, trust)
+            if E < 0.5 * D:
+                # the allowed step drops early in this revolution: a gap that starts at D
+                # cannot be mended by E, so this revolution ends closer (the gap to the
+                # previous one only narrows) and the next may be at least half its pitch
+                g = trust * planner.domain_steps(cur)
+                ok = np.isfinite(g)
+                D_new = float(np.min(g[ok] / (1.0 - 0.5 * cur.tau[ok]))) if ok.any() else D
+                if min_gap < D_new < D:
+                    D = D_new
+                    a1 = a0 + D
+                    levels[-1] = a1
+                    cur = turns[-1] = turn(a0, a1)
+                    if realised:
+                        realised[-1], _ = pair_distances(turns[-2], cur)
+                    E = _next_gap(planner, cur, D, trust)
+            E = min(max(E, 0.0), s_end - a1)
             nxt = None
         first = True
-        for _ in range(16):
+        for it in range(24):
             if nxt is None:
                 if E <= min_gap:
                     break
@@ -101,7 +117,7 @@ def plan_spiral(planner, poly, delta: float, progress=None, adaptive: bool = Tru
             # the gap at the worst sample, brought within bounds by E alone if it can be
             gap = (1.0 - tw) * D + tw * E
             E_new = (gap * min(0.995 / ratio, 0.999) - (1.0 - tw) * D) / tw if tw > 0.05 else -1.0
-            if E_new > 0.1 * D or (E > min_gap and E_new > min_gap):
+            if it < 12 and (E_new > 0.1 * D or (E > min_gap and E_new > min_gap)):
                 trust *= min(0.995 / ratio, 0.999)
                 E = min(E_new, E * 0.999)
             else:

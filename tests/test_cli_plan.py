@@ -88,3 +88,20 @@ def test_bad_values_exit_without_output(part, tmp_path, capsys, args, code, word
 def test_missing_output_folder(part, tmp_path, capsys):
     rc = main(["plan", str(part), "--tool-radius", "4", "--scallop", "0.1", "-o", str(tmp_path / "no" / "p.nc")])
     assert rc == 2 and "does not exist" in capsys.readouterr().err
+
+
+def test_spacing_option_reaches_the_report(part, tmp_path, capsys):
+    for spacing in ("paper", "adaptive"):
+        out, rep = tmp_path / f"{spacing}.nc", tmp_path / f"{spacing}.json"
+        assert main(["plan", str(part), "--pattern", "contour", "--tool-radius", "4", "--scallop", "0.5",
+                     "--spacing", spacing, "-o", str(out), "--report", str(rep), "-q"]) == 0
+        assert json.loads(rep.read_text())["job"]["spacing"] == spacing
+    capsys.readouterr()
+    bad = tmp_path / "bad.nc"
+    try:
+        rc = main(["plan", str(part), "--tool-radius", "4", "--scallop", "0.5", "--spacing", "dense", "-o", str(bad)])
+    except SystemExit as exc:  # argparse's own exit for an unknown choice
+        rc = exc.code
+    err = capsys.readouterr().err
+    assert rc == 2 and "spacing" in err and "Traceback" not in err
+    assert not bad.exists()

@@ -10,6 +10,7 @@ every curve is clipped radially to that polygon: the last ring is the boundary i
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 from conformill.patterns.family import Family
 
@@ -19,13 +20,40 @@ TWO_PI = 2.0 * np.pi
 MIN_CROSSING = 0.25  # floor of |det(a, t)| in a warped family's rate
 
 
+@njit(cache=True)
+def _unit_tangent_kernel(P, tau, fallback):
+    # np.gradient(P, tau, axis=0) (second order inside, first order at the ends), then
+    # normalised; rows of zero length take the fallback
+    k = P.shape[0]
+    out = np.empty((k, 2))
+    for i in range(k):
+        if i == 0:
+            h = tau[1] - tau[0]
+            dx, dy = (P[1, 0] - P[0, 0]) / h, (P[1, 1] - P[0, 1]) / h
+        elif i == k - 1:
+            h = tau[k - 1] - tau[k - 2]
+            dx, dy = (P[k - 1, 0] - P[k - 2, 0]) / h, (P[k - 1, 1] - P[k - 2, 1]) / h
+        else:
+            hs, hd = tau[i] - tau[i - 1], tau[i + 1] - tau[i]
+            a = -hd / (hs * (hd + hs))
+            b = (hd - hs) / (hd * hs)
+            c = hs / (hd * (hd + hs))
+            dx = a * P[i - 1, 0] + b * P[i, 0] + c * P[i + 1, 0]
+            dy = a * P[i - 1, 1] + b * P[i, 1] + c * P[i + 1, 1]
+        n = np.sqrt(dx * dx + dy * dy)
+        if n > 1e-300:
+            out[i, 0], out[i, 1] = dx / n, dy / n
+        else:
+            out[i, 0], out[i, 1] = fallback[i, 0], fallback[i, 1]
+    return out
+
+
 def _unit_tangent(P, tau, fallback):
     """Unit tangents of the domain polyline ``P`` sampled at ``tau`` (finite differences)."""
     if len(tau) < 2:
         return fallback
-    d = np.gradient(P, tau, axis=0)
-    n = np.linalg.norm(d, axis=1, keepdims=True)
-    return np.where(n > 1e-300, d / np.maximum(n, 1e-300), fallback)
+    return _unit_tangent_kernel(np.ascontiguousarray(P, dtype=np.float64), np.ascontiguousarray(tau, dtype=np.float64),
+                                np.ascontiguousarray(fallback, dtype=np.float64))
 
 
 def _cached(fam, tau):

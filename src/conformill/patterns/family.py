@@ -1,7 +1,9 @@
 """Families of offset paths in the domain, spaced from the scallop height (METHOD 4-5).
 
 A *family* is a one-parameter set of domain curves ``c(s, tau)``: iso-u lines of the
-rectangle domain (``s = u``) or circles of the circle domain (``s = rho``). Starting from
+rectangle domain (``s = u``) or circles of the circle domain (``s = rho``), or, with
+adaptive spacing, the curves of constant level ``s`` of a warp of those offsets
+(:mod:`conformill.patterns.warp`). Starting from
 the first curve, the next curve is at ``s + min_i ds_i`` (the paper's rule: the minimum over
 the current path's points), where ``ds_i`` maps the allowed side interval ``l_s`` to the
 domain with the actual metric. Then, going past the paper, the true 3D distance between

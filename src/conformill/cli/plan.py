@@ -92,7 +92,8 @@ def run(args) -> int:
         "mesh": args.mesh, "pattern": job.pattern, "tool": f"ball R{job.tool_radius:g} (D{2 * job.tool_radius:g})",
         "scallop": job.scallop, "tolerance": job.tolerance, "feed": job.feed,
         "plunge_feed": job.plunge_feed or job.feed / 3, "safe_z": round(result.toolpath.safe_z, 4),
-        "scale": args.scale, "orient": job.orient, "weights": job.weights, "concave steps": job.concave_steps, "spacing": job.spacing,
+        "scale": args.scale, "orient": job.orient, "weights": job.weights, "concave steps": job.concave_steps,
+        "spacing": job.spacing,
         "programmed point": "tool tip", "units": "mm",
     }
     with all_or_nothing(args.output, args.report, args.plot, args.html):

@@ -56,16 +56,25 @@ def _unit_tangent(P, tau, fallback):
                                 np.ascontiguousarray(fallback, dtype=np.float64))
 
 
-def _cached(fam, tau):
-    """``dg/ds`` stored by the last ``along`` call on these very ``tau``, if any."""
+def _level_rate(fam, levels, tau, a, t):
+    """Domain distance a warped curve moves across itself per unit level: ``|det(a, t)| dg/ds``.
+
+    ``a`` is the unit base direction (u or the ray); ``dg/ds`` comes from the family's last
+    ``along`` call when it was on these very ``tau``, else from the warp at ``levels``.
+    """
     last = getattr(fam, "_last", None)
-    return last[1] if last is not None and last[0] is tau else None
-
-
-def _warp_rate(a, t, dg):
-    """Domain distance moved across the curve per unit level: ``|det(a, t)| dg/ds``."""
+    if last is not None and last[0] is tau:
+        dg = last[1]
+    else:
+        _, dg = fam.warp.offset(levels, tau)
     det = np.abs(a[:, 0] * t[:, 1] - a[:, 1] * t[:, 0])
     return np.maximum(det, MIN_CROSSING) * dg
+
+
+def _ray(fam, tau):
+    """Unit radial directions of the circle domain at along-parameters ``tau``."""
+    th = fam.theta0 + TWO_PI * tau
+    return np.column_stack([np.cos(th), np.sin(th)])
 
 
 class IsoU(Family):
@@ -94,10 +103,7 @@ class IsoU(Family):
     def rate(self, s, tau, P, t):
         if self.warp is None:
             return None
-        dg = _cached(self, tau)
-        if dg is None:
-            _, dg = self.warp.offset(s, tau)
-        return _warp_rate(np.tile([1.0, 0.0], (len(tau), 1)), t, dg)
+        return _level_rate(self, s, tau, np.tile([1.0, 0.0], (len(tau), 1)), t)
 
     def initial_tau(self, s):
         return np.linspace(0.0, 1.0, max(8, int(np.ceil(self.Y / self.delta))) + 1)
@@ -217,11 +223,7 @@ class Rings(Family):
     def rate(self, s, tau, P, t):
         if self.warp is None:
             return None
-        th = self.theta0 + TWO_PI * tau
-        dg = _cached(self, tau)
-        if dg is None:
-            _, dg = self.warp.offset(s, tau)
-        return _warp_rate(np.column_stack([np.cos(th), np.sin(th)]), t, dg)
+        return _level_rate(self, s, tau, _ray(self, tau), t)
 
     def initial_tau(self, s):
         n = max(32, int(np.ceil(TWO_PI * _largest_offset(self, s) / self.delta)))
@@ -262,13 +264,8 @@ class SpiralTurn(Family):
     def rate(self, s, tau, P, t):
         if self.warp is None:
             return None
-        th = self.theta0 + TWO_PI * tau
-        dg = _cached(self, tau)
-        if dg is None:
-            _, dg = self.warp.offset(self.r0 + tau * (self.r1 - self.r0), tau)
-        return _warp_rate(np.column_stack([np.cos(th), np.sin(th)]), t, dg)
+        return _level_rate(self, self.r0 + tau * (self.r1 - self.r0), tau, _ray(self, tau), t)
 
     def initial_tau(self, s):
-        r1 = self.r1 if self.warp is None else float(np.max(self.warp.offset(self.r1, np.linspace(0, 1, 129))[0]))
-        n = max(32, int(np.ceil(TWO_PI * max(r1, 1e-12) / self.delta)))
+        n = max(32, int(np.ceil(TWO_PI * max(_largest_offset(self, self.r1), 1e-12) / self.delta)))
         return np.linspace(0.0, 1.0, n + 1)

@@ -34,10 +34,8 @@ log = logging.getLogger(__name__)
 TOL = 1.0 + 1e-9
 
 
-def _next_gap(planner, turn, D: float, trust: float = 1.0) -> float:
-    """Largest ``E`` with ``(1 - tau) D + tau E`` within ``trust`` x the allowed step of ``turn``."""
-    g = trust * planner.domain_steps(turn)
-    tau = turn.tau
+def _next_gap(g, tau, D: float) -> float:
+    """Largest ``E`` with ``(1 - tau) D + tau E`` within the allowed steps ``g`` at ``tau``."""
     ok = np.isfinite(g) & (tau > 0.05)
     if not ok.any():
         return D
@@ -63,6 +61,15 @@ def plan_spiral(planner, poly, delta: float, progress=None, adaptive: bool = Tru
     def turn(a, b):
         return planner.evaluate(SpiralTurn(poly, a, b, delta, warp=warp), a)
 
+    def replan(a0, D):
+        """Plan the last revolution again, from ``a0`` to ``a0 + D`` (its gap to the one
+        before only narrows; that gap's figures are refreshed)."""
+        levels[-1] = a0 + D
+        turns[-1] = turn(a0, a0 + D)
+        if realised:
+            realised[-1], _ = pair_distances(turns[-2], turns[-1])
+        return a0 + D, turns[-1]
+
     centre = planner.evaluate(rings, 0.0)
     D = min(float(np.min(planner.domain_steps(centre))), s_end)
     levels = [0.0, D]
@@ -81,22 +88,18 @@ def plan_spiral(planner, poly, delta: float, progress=None, adaptive: bool = Tru
             nxt = planner.evaluate(rings, s_end)
             E = 0.0
         else:
-            E = _next_gap(planner, cur, D, trust)
+            g = trust * planner.domain_steps(cur)
+            E = _next_gap(g, cur.tau, D)
             if E < 0.5 * D:
                 # the allowed step drops early in this revolution: a gap that starts at D
                 # cannot be mended by E, so this revolution ends closer (the gap to the
                 # previous one only narrows) and the next may be at least half its pitch
-                g = trust * planner.domain_steps(cur)
                 ok = np.isfinite(g)
                 D_new = float(np.min(g[ok] / (1.0 - 0.5 * cur.tau[ok]))) if ok.any() else D
                 if min_gap < D_new < D:
                     D = D_new
-                    a1 = a0 + D
-                    levels[-1] = a1
-                    cur = turns[-1] = turn(a0, a1)
-                    if realised:
-                        realised[-1], _ = pair_distances(turns[-2], cur)
-                    E = _next_gap(planner, cur, D, trust)
+                    a1, cur = replan(a0, D)
+                    E = _next_gap(trust * planner.domain_steps(cur), cur.tau, D)
             E = min(max(E, 0.0), s_end - a1)
             nxt = None
         first = True
@@ -127,12 +130,8 @@ def plan_spiral(planner, poly, delta: float, progress=None, adaptive: bool = Tru
                 D = D * min(0.995 / ratio, 0.9)
                 if D <= min_gap:
                     raise PlanningError(f"spiral step collapsed at offset {a0:.6g}: degenerate surface frame")
-                a1 = a0 + D
-                levels[-1] = a1
-                cur = turns[-1] = turn(a0, a1)
-                if realised:  # the previous gap only narrowed; refresh its figures
-                    realised[-1], _ = pair_distances(turns[-2], cur)
-                E = min(max(_next_gap(planner, cur, D, trust), 0.0), s_end - a1)
+                a1, cur = replan(a0, D)
+                E = min(max(_next_gap(trust * planner.domain_steps(cur), cur.tau, D), 0.0), s_end - a1)
             nxt = None
         else:
             log.warning("spiral spacing check did not converge at offset %.6g (ratio %.3f)", a1, ratio)

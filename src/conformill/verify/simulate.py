@@ -746,9 +746,10 @@ def unreachable_samples(samples: SurfaceSamples, V: np.ndarray, tool_radius: flo
     the shank would pass through the part.
 
     Both tests look at the samples and the mesh vertices (a k-d tree for the ball, a grid
-    for the shank, exact against those points). That overestimates the true distance by at most the sampling gap, so a
-    sample is only ever wrongly counted *reachable*, never wrongly excused: the test cannot
-    hide a planner's mistake. It shares nothing with the planner's reachability analysis.
+    for the shank, exact against those points). That overestimates the true distance by at
+    most the sampling gap, so a sample is only ever wrongly counted *reachable*, never
+    wrongly excused: the test cannot hide a planner's mistake. It shares nothing with the
+    planner's reachability analysis.
 
     Returns
     -------
@@ -793,32 +794,31 @@ def _shank_blocked(X: np.ndarray, C: np.ndarray, rho: float, depth: float) -> np
     return out
 
 
+@nb.njit(cache=True)
+def _shank_hit(Xs, start, zmax, nx, ny, lox, loy, g, cx, cy, top, rho):
+    """Whether a point of ``Xs`` lies within XY distance ``rho`` of ``(cx, cy)`` above ``top``."""
+    rr = rho * rho
+    i0 = max(int(math.floor((cx - rho - lox) / g)), 0)
+    i1 = min(int(math.floor((cx + rho - lox) / g)), nx - 1)
+    j0 = max(int(math.floor((cy - rho - loy) / g)), 0)
+    j1 = min(int(math.floor((cy + rho - loy) / g)), ny - 1)
+    for i in range(i0, i1 + 1):
+        for j in range(j0, j1 + 1):
+            c = i * ny + j
+            if zmax[c] <= top:  # nothing in this cell rises above the centre
+                continue
+            for k in range(start[c], start[c + 1]):
+                if Xs[k, 2] > top:
+                    dx, dy = Xs[k, 0] - cx, Xs[k, 1] - cy
+                    if dx * dx + dy * dy < rr:
+                        return True
+    return False
+
+
 @nb.njit(cache=True, parallel=True)
 def _shank_kernel(Xs, start, zmax, nx, ny, lox, loy, g, C, rho, depth, out):
-    rr = rho * rho
     for q in nb.prange(C.shape[0]):
-        cx, cy, top = C[q, 0], C[q, 1], C[q, 2] + depth
-        i0 = max(int(math.floor((cx - rho - lox) / g)), 0)
-        i1 = min(int(math.floor((cx + rho - lox) / g)), nx - 1)
-        j0 = max(int(math.floor((cy - rho - loy) / g)), 0)
-        j1 = min(int(math.floor((cy + rho - loy) / g)), ny - 1)
-        hit = False
-        for i in range(i0, i1 + 1):
-            if hit:
-                break
-            for j in range(j0, j1 + 1):
-                c = i * ny + j
-                if zmax[c] <= top:
-                    continue
-                for k in range(start[c], start[c + 1]):
-                    if Xs[k, 2] > top:
-                        dx, dy = Xs[k, 0] - cx, Xs[k, 1] - cy
-                        if dx * dx + dy * dy < rr:
-                            hit = True
-                            break
-                if hit:
-                    break
-        out[q] = hit
+        out[q] = _shank_hit(Xs, start, zmax, nx, ny, lox, loy, g, C[q, 0], C[q, 1], C[q, 2] + depth, rho)
 
 
 def verify(mesh, program: Program, tool_radius: float, n_samples: int = 200_000, seed: int = 0,

@@ -339,6 +339,40 @@ class TestRefine:
         assert _is_subsequence(P, Q)
         assert _max_dip(cut, Q, spacing=0.02) <= 0.01
 
+    @pytest.mark.parametrize("tol", [0.01, 0.002])
+    def test_moves_keep_clear_of_the_mesh(self, tol):
+        # The exact bound: every centre move stays at least r - tol / 2 from every triangle
+        # (segment-triangle distance from conformill.verify, which shares no code with the
+        # cutter). Zigzag rows over a jittered free-form patch with a notch.
+        from scipy.spatial import cKDTree
+
+        from conformill.verify.simulate import segment_triangle_distance
+
+        m = syn.freeform_patch(spacing=2.0, jitter=0.3)
+        r = 3.0
+        cut = BallCutter(m.V, m.F, r)
+        x = np.arange(-50, 51, 2.5)
+        xy = np.vstack([np.column_stack([x if k % 2 == 0 else x[::-1], np.full_like(x, y)])
+                        for k, y in enumerate(np.arange(-30, 31, 7.5))])
+        z = cut.drop(xy)
+        P = np.column_stack([xy, z])[np.isfinite(z)]
+        Q = cut.refine(P, tol)
+        assert len(Q) > len(P)
+        A, B = Q[:-1], Q[1:]
+        cen = m.V[m.F].mean(axis=1)
+        rad = np.linalg.norm(m.V[m.F] - cen[:, None], axis=2).max()
+        half = 0.5 * np.linalg.norm(B - A, axis=1)
+        near = cKDTree(cen).query_ball_point(0.5 * (A + B), r + half + rad)
+        seg = np.repeat(np.arange(len(A)), [len(n) for n in near])
+        tri = np.concatenate([np.asarray(n, dtype=np.int64) for n in near])
+        d = segment_triangle_distance(A, B, m.V, m.F, seg, tri)
+        assert d.min() >= r - tol / 2 - 1e-9
+        # without the inserted points the moves do cut deeper
+        near0 = cKDTree(cen).query_ball_point(0.5 * (P[:-1] + P[1:]), r + 3.0 + rad)
+        seg0 = np.repeat(np.arange(len(P) - 1), [len(n) for n in near0])
+        tri0 = np.concatenate([np.asarray(n, dtype=np.int64) for n in near0])
+        assert segment_triangle_distance(P[:-1], P[1:], m.V, m.F, seg0, tri0).min() < r - tol
+
     def test_flat_needs_nothing_and_short_inputs(self):
         m = syn.plane(size=50.0, spacing=5.0, jitter=0.2, z=1.0)
         cut = BallCutter(m.V, m.F, R_BALL)
@@ -351,8 +385,6 @@ class TestRefine:
         cut = BallCutter(m.V, m.F, R_BALL)
         with pytest.raises(PlanningError, match="tolerance must be positive"):
             cut.refine(np.zeros((2, 3)), 0.0)
-        with pytest.raises(PlanningError, match="step must be positive"):
-            cut.refine(np.zeros((2, 3)), 0.01, step=-1)
 
 
 def test_tip_is_centre_minus_r():

@@ -63,6 +63,8 @@ _BOUND_NZ = 1e-3
 #: Slack (mm) on the pruning bounds so that rounding can never drop a contact that would
 #: raise the result: the answer is then independent of the visiting order.
 _PRUNE_SLACK = 1e-9
+#: How far below the ideal centre height (mm) the drop search of ``cl_from_cc`` starts.
+_FLOOR_SLACK = 1e-6
 #: Points handled by one thread task (consecutive points share the warm start).
 _CHUNK = 256
 #: Upper bound on grid cells (memory); the cell size grows when exceeded.
@@ -219,14 +221,17 @@ def _scan_cell(px, py, r, r2, T, B, cstart, ctri, EB, c, hc, best, besttri):
 
 @njit(cache=True)
 def _drop_point(px, py, r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB,
-                warm, cid, cbound):
+                warm, cid, cbound, floor):
     """Drop height at one point; returns (height, contact triangle or -1).
 
-    With a warm start (the previous point's contact triangle) the cells are scanned in
-    grid order, each skipped when its bound is below the best height; without one they are
-    visited by decreasing bound, which finds a good height sooner.
+    With a warm start (the previous point's contact triangle) or a finite ``floor`` (a
+    height known not to exceed the answer, or below which the answer does not matter) the
+    cells are scanned in grid order, each skipped when its bound is below the best height;
+    without either they are visited by decreasing bound, which finds a good height sooner.
+    The result is ``max(drop, floor)``, with triangle -1 when no triangle rises above
+    ``floor``.
     """
-    best = -np.inf
+    best = floor
     besttri = -1
     if warm >= 0:
         h = _tri_drop(px, py, r, r2, T, warm)
@@ -295,9 +300,10 @@ def _drop_point(px, py, r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czm
 
 
 @njit(cache=True, parallel=True)
-def _drop_many(xy, r, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, maxwin):
+def _drop_many(xy, r, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, maxwin, floor):
     k = xy.shape[0]
     out = np.empty(k, dtype=np.float64)
+    hit = np.empty(k, dtype=np.bool_)
     nchunks = (k + _CHUNK - 1) // _CHUNK
     r2 = r * r
     for ch in prange(nchunks):
@@ -306,11 +312,12 @@ def _drop_many(xy, r, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, m
         warm = -1
         for p in range(ch * _CHUNK, min(k, (ch + 1) * _CHUNK)):
             h, t = _drop_point(xy[p, 0], xy[p, 1], r, r2, T, B, gx0, gy0, cell, ncx, ncy,
-                               cstart, ctri, czmax, EB, warm, cid, cbound)
+                               cstart, ctri, czmax, EB, warm, cid, cbound, floor[p])
             out[p] = h
+            hit[p] = t >= 0
             if t >= 0:
                 warm = t
-    return out
+    return out, hit
 
 
 @njit(cache=True)
@@ -497,9 +504,18 @@ class BallCutter:
         xy = _as_points(xy, 2, "xy")
         if xy.shape[0] == 0:
             return np.empty(0, dtype=np.float64)
+        return self._drop(xy, np.full(xy.shape[0], -np.inf))[0]
+
+    def _drop(self, xy, floor):
+        """``(max(drop, floor), hit)``: ``hit`` is False where no triangle rises above ``floor``.
+
+        A finite floor prunes more cells and triangles from the start; where ``hit`` is
+        True the height is the exact drop height.
+        """
         gx0, gy0, cell, ncx, ncy = self._grid
         return _drop_many(xy, self.radius, self._T, self._B, gx0, gy0, cell, ncx, ncy,
-                          self._cstart, self._ctri, self._czmax, self._EB, self._maxwin)
+                          self._cstart, self._ctri, self._czmax, self._EB, self._maxwin,
+                          np.ascontiguousarray(floor, dtype=np.float64))
 
     # ------------------------------------------------------------------ CC -> CL
     def cl_from_cc(self, cc, n):
@@ -541,7 +557,13 @@ class BallCutter:
         if zero.size:
             raise PlanningError(f"cutter: {zero.size} normals have zero length (first: point {zero[0]})")
         ideal = cc + self.radius * (n / ln[:, None])
-        z = self.drop(ideal[:, :2])
+        # The ball at the ideal centre touches the mesh at cc, so the drop height is at
+        # least ideal_z (up to rounding): a floor a little below it prunes most of the
+        # search. Points where nothing rose above the floor get a plain drop.
+        z, hit = self._drop(ideal[:, :2], ideal[:, 2] - _FLOOR_SLACK)
+        if not hit.all():
+            miss = np.flatnonzero(~hit)
+            z[miss] = self.drop(ideal[miss, :2])
         miss = np.flatnonzero(~np.isfinite(z))
         if miss.size:
             i = miss[0]
@@ -553,33 +575,43 @@ class BallCutter:
         return center, z - ideal[:, 2]
 
     # ------------------------------------------------------------------ chords
-    def refine(self, centers, tol: float, step: float | None = None, max_iter: int = 40):
-        """Insert drop-cutter points where a straight centre move would dip below the drop surface.
+    def refine(self, centers, tol: float, max_iter: int = 40, max_depth: int = 16):
+        """Insert drop-cutter points where a straight centre move could cut into the part.
 
         A linear move between two safe ball centres can still cut into the part where the
         drop surface ``D`` (the highest safe centre height) bulges above the chord: convex
-        regions and creases. A move no longer than ``L_safe = 2 sqrt(r^2 - (r - tol/2)^2)``
-        cannot cut deeper than ``tol / 2`` (exact bound, see the code) and is accepted; one
-        up to ``2 L_safe`` gets its drop midpoint inserted (both halves are then short
-        enough); a longer one is sampled every ``step`` (3D length); where the
-        chord lies below ``D`` by more than ``tol / 2`` at a sample, the worst sample
-        ``(x, y, D)`` is inserted; repeated until no segment violates (at most ``max_iter``
-        rounds; the last round inserts every violating sample).
+        regions and creases. Every move is checked exactly against the bound below, by
+        bisection; where a chord point lies more than ``tol / 2`` below ``D``, the worst
+        such point, lifted onto ``D``, is inserted, and the two new moves are checked again
+        (at most ``max_iter`` rounds).
 
-        Between samples the chord error can grow by at most ``step^2 / (8 rho)`` where
-        ``rho`` is the curvature radius of ``D`` along the move (``rho >= r`` on facets, edges
-        and smooth regions; smaller only near vertex contacts at the rim of the ball); the
-        default ``step = sqrt(r tol)`` keeps that below ``tol / 2`` for ``rho >= r / 4``.
+        The bound. A chord point ``q`` that lies ``d >= 0`` below the drop height at its
+        XY is at least ``r - d`` from every point ``c`` of the mesh (the ball at
+        ``q + d Z`` touches nothing). For a piece ``q0 q1`` of the chord of length ``l``
+        with such depths ``d0, d1``, the point ``p = (1 - t) q0 + t q1`` satisfies the
+        identity ``|p - c|^2 = (1 - t)|q0 - c|^2 + t|q1 - c|^2 - t(1 - t) l^2``, so::
+
+            |p - c|^2 >= f(t) = (1 - t)(r - d0)^2 + t (r - d1)^2 - t (1 - t) l^2,
+
+        and the ball at ``p`` cuts at most ``r - sqrt(min_t f)`` into the part. A piece
+        whose bound is within ``tol / 2`` is accepted; otherwise its midpoint is dropped
+        and both halves are checked (``f`` tends to ``(r - max(d0, d1))^2`` as ``l``
+        shrinks, so the bisection ends). Between two points on ``D`` a move no longer than
+        ``L_safe = 2 sqrt(r^2 - (r - tol/2)^2)`` passes at once. Unlike sampling the chord,
+        the test misses nothing between the points it drops, whatever the curvature of
+        ``D``; it can only insert a point that was not needed.
 
         Parameters
         ----------
         centers : (k, 3) float64
             Ball centres of one continuous pass, on or above the drop surface.
         tol : float
-            Allowed dip of the centre path below the drop surface, mm.
-        step : float, optional
-            Sampling interval along each move (XY), mm.
+            Allowed cut depth of the centre moves into the part is ``tol / 2``, mm.
         max_iter : int
+            Rounds of insertion.
+        max_depth : int
+            Bisection levels per round; a piece still undecided after them counts as
+            violating at its deeper end.
 
         Returns
         -------
@@ -589,82 +621,104 @@ class BallCutter:
         Raises
         ------
         PlanningError
-            Bad shapes, non-finite values, ``tol`` or ``step`` not positive.
+            Bad shapes, non-finite values, ``tol`` not positive.
         """
         P = _as_points(centers, 3, "centers")
         tol = float(tol)
         if not (math.isfinite(tol) and tol > 0):
             raise PlanningError(f"cutter: refine tolerance must be positive, got {tol}")
-        if step is None:
-            step = math.sqrt(self.radius * tol)
-        step = float(step)
-        if not (math.isfinite(step) and step > 0):
-            raise PlanningError(f"cutter: refine step must be positive, got {step}")
         if len(P) < 2:
             return P.copy()
-        thresh = 0.5 * tol
-        # Exact bound (no sampling needed): if a and b are safe centres (every mesh point is
-        # at least r away), then for p = (1-t) a + t b and any mesh point c,
-        # |p-c|^2 = (1-t)|a-c|^2 + t|b-c|^2 - t(1-t)|a-b|^2 >= r^2 - |a-b|^2 / 4,
-        # so the ball at p cuts at most r - sqrt(r^2 - L^2/4) into the part. Moves shorter
-        # than L_safe (that depth = tol/2) are therefore never sampled.
         r = self.radius
-        l_safe = 2.0 * math.sqrt(max(r * r - (r - min(thresh, r)) ** 2, 0.0))
-        check = np.linalg.norm(np.diff(P, axis=0), axis=1) > l_safe
+        thresh = min(0.5 * tol, r)
+        floor2 = (r - thresh) ** 2
+        # moves to check: all but the (nearly) vertical ones (a vertical move between two
+        # safe centres stays above the drop surface)
+        d = np.diff(P, axis=0)
+        check = np.hypot(d[:, 0], d[:, 1]) > 1e-9
         for it in range(max_iter):
-            last = it == max_iter - 1
             seg = np.flatnonzero(check)
             if seg.size == 0:
                 break
-            a = P[seg]
-            b = P[seg + 1]
-            # sample by 3D length: a steep move has a short XY projection but can still dip
-            l3 = np.linalg.norm(b - a, axis=1)
-            ns = np.ceil(l3 / step).astype(np.int64) - 1  # interior samples per segment
-            # A move up to 2 L_safe long gets its drop midpoint inserted, whatever its dip:
-            # both halves are then short enough for the bound (one drop instead of several
-            # samples, and exact). Longer moves are sampled every ``step``.
-            mid_only = l3 <= 2.0 * l_safe
-            ns[mid_only] = 1
-            seg_thr = np.where(mid_only, -np.inf, thresh)
-            ns = np.maximum(ns, 0)
-            tot = int(ns.sum())
-            if tot == 0:
-                break
-            owner = np.repeat(np.arange(seg.size), ns)
-            first = np.cumsum(ns) - ns
-            j = np.arange(tot) - first[owner] + 1
-            t = j / (ns[owner] + 1.0)
-            S = a[owner] + t[:, None] * (b[owner] - a[owner])
-            D = self.drop(S[:, :2])
-            v = D - S[:, 2]  # -inf where the ball leaves the mesh: never a violation
-            bad = (v > seg_thr[owner]) & np.isfinite(D)
+            worst_t, worst_d = self._worst_points(P, seg, thresh, floor2, max_depth)
+            bad = worst_d > thresh
             if not bad.any():
-                check[:] = False
                 break
-            if last:
-                ins_idx = np.flatnonzero(bad)
-            else:
-                # the worst sample of every violating segment
-                vv = np.where(bad, v, -np.inf)
-                o = np.lexsort((-vv, owner))
-                firsts = o[np.r_[0, np.flatnonzero(np.diff(owner[o])) + 1]]
-                ins_idx = firsts[bad[firsts]]
-            ins_idx = np.sort(ins_idx)  # by (segment, position along it)
-            newpts = S[ins_idx].copy()
-            newpts[:, 2] = D[ins_idx]
-            after = seg[owner[ins_idx]]  # insert after point index `after`
-            P, check = _insert(P, check, after, newpts, recheck=not last)
-            if not last:  # re-check only the touched moves that are still long enough to dip
-                idx = np.flatnonzero(check)
-                d = P[idx + 1] - P[idx]
-                # a (nearly) vertical move between two safe centres is safe: the drop surface
-                # is the lowest safe height over each XY point
-                check[idx] = (np.linalg.norm(d, axis=1) > l_safe) & (np.hypot(d[:, 0], d[:, 1]) > 1e-4 * step)
-            if last:
-                log.warning("cutter.refine: stopped after %d rounds; %d points inserted in the last round",
-                            max_iter, len(ins_idx))
+            seg_bad = seg[bad]
+            a = P[seg_bad]
+            b = P[seg_bad + 1]
+            newpts = a + worst_t[bad, None] * (b - a)
+            newpts[:, 2] = self.drop(newpts[:, :2])
+            P, check = _insert(P, np.zeros(len(P) - 1, dtype=bool), seg_bad, newpts, recheck=True)
+        else:
+            if check.any():
+                log.warning("cutter.refine: stopped after %d rounds with %d moves unchecked",
+                            max_iter, int(check.sum()))
         return P
+
+    def _worst_points(self, P, seg, thresh, floor2, max_depth):
+        """Bisection of moves ``seg``: the deepest violating chord point of each (or 0, 0)."""
+        r = self.radius
+        l_safe = 2.0 * math.sqrt(r * r - floor2)
+        a = P[seg]
+        v = P[seg + 1] - a
+        L = np.linalg.norm(v, axis=1)
+        worst_t = np.zeros(seg.size)
+        worst_d = np.zeros(seg.size)
+        # First cut every move into equal pieces no longer than L_safe (those pass at once
+        # if their ends lie on D); the pending pieces are (owner = index into seg, t0, t1,
+        # d0, d1).
+        n = np.maximum(np.ceil(L / l_safe), 1.0).astype(np.int64)
+        own = np.repeat(np.arange(seg.size), n)
+        j = np.arange(own.size) - np.repeat(np.cumsum(n) - n, n)
+        t0 = j / n[own]
+        t1 = (j + 1) / n[own]
+        d1 = np.zeros(own.size)
+        inner = t1 < 1.0  # the piece's end is a sample inside the move
+        Q = a[own[inner]] + t1[inner, None] * v[own[inner]]
+        D, _ = self._drop(Q[:, :2], Q[:, 2])
+        d1[inner] = D - Q[:, 2]
+        d0 = np.zeros(own.size)
+        d0[1:][inner[:-1]] = d1[:-1][inner[:-1]]
+        viol = d1 > thresh
+        if viol.any():
+            _record(worst_t, worst_d, own[viol], t1[viol], d1[viol])
+            go = worst_d[own] <= thresh
+            own, t0, t1, d0, d1 = own[go], t0[go], t1[go], d0[go], d1[go]
+        for level in range(max_depth + 1):
+            if own.size == 0:
+                break
+            l2 = ((t1 - t0) * L[own]) ** 2
+            fa = (r - d0) ** 2
+            fb = (r - d1) ** 2
+            ts = np.clip((fa - fb + l2) / np.maximum(2.0 * l2, 1e-300), 0.0, 1.0)
+            fmin = fa + ts * (fb - fa - l2) + ts * ts * l2
+            keep = fmin < floor2
+            if level == max_depth:  # undecided: count the deeper end as violating
+                k = np.flatnonzero(keep)
+                deep = np.where(d0[k] >= d1[k], t0[k], t1[k])
+                dd = np.maximum(np.maximum(d0[k], d1[k]), np.nextafter(thresh, np.inf))
+                _record(worst_t, worst_d, own[k], deep, dd)
+                break
+            own, t0, t1, d0, d1 = own[keep], t0[keep], t1[keep], d0[keep], d1[keep]
+            if own.size == 0:
+                break
+            tm = 0.5 * (t0 + t1)
+            Q = a[own] + tm[:, None] * v[own]
+            # only how far D rises above the chord matters: the chord height is the floor
+            D, _ = self._drop(Q[:, :2], Q[:, 2])
+            dm = D - Q[:, 2]
+            viol = dm > thresh
+            if viol.any():
+                _record(worst_t, worst_d, own[viol], tm[viol], dm[viol])
+            # a move with a violation is settled for this round (its worst point is
+            # inserted and both new moves are checked again)
+            go = ~viol & (worst_d[own] <= thresh)
+            own, t0, t1, d0, d1, tm, dm = own[go], t0[go], t1[go], d0[go], d1[go], tm[go], dm[go]
+            own = np.concatenate([own, own])
+            t0, t1 = np.concatenate([t0, tm]), np.concatenate([tm, t1])
+            d0, d1 = np.concatenate([d0, dm]), np.concatenate([dm, d1])
+        return worst_t, worst_d
 
     # ------------------------------------------------------------------ tool tip
     def tip(self, centers) -> np.ndarray:
@@ -673,6 +727,16 @@ class BallCutter:
         out = P.copy()
         out[:, 2] -= self.radius
         return out
+
+
+def _record(worst_t, worst_d, owner, t, d):
+    """Keep, per owner, the chord parameter ``t`` of the largest depth ``d``."""
+    o = np.lexsort((-d, owner))
+    first = o[np.r_[0, np.flatnonzero(np.diff(owner[o])) + 1]]
+    w = owner[first]
+    better = d[first] > worst_d[w]
+    worst_t[w[better]] = t[first][better]
+    worst_d[w[better]] = d[first][better]
 
 
 def _insert(P, check, after, newpts, recheck):

@@ -320,6 +320,147 @@ def _drop_many(xy, r, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, m
     return out, hit
 
 
+@njit(cache=True, inline="always")
+def _piece_ok(r, d0, d1, l2, floor2):
+    """Whether the bound ``min_t f(t) >= (r - tol/2)^2`` holds (see ``BallCutter.refine``)."""
+    fa = (r - d0) * (r - d0)
+    fb = (r - d1) * (r - d1)
+    ts = (fa - fb + l2) / max(2.0 * l2, 1e-300)
+    ts = min(max(ts, 0.0), 1.0)
+    return fa + ts * (fb - fa - l2) + ts * ts * l2 >= floor2
+
+
+@njit(cache=True, parallel=True)
+def _worst_points(P, seg, r, thresh, floor2, l_safe, max_depth, T, B, gx0, gy0, cell, ncx, ncy,
+                  cstart, ctri, czmax, EB, maxwin):
+    """Per move ``P[seg[i]] -> P[seg[i] + 1]``: chord parameter and depth below the drop
+    surface of its deepest violating point, or (0, 0) when the bound proves the move safe.
+
+    The move is cut into equal pieces no longer than ``l_safe``; the pieces are then
+    bisected level by level while the bound fails; the first level with a violation (a
+    point more than ``thresh`` below the drop surface) settles the move with its deepest
+    violating point; a piece still undecided after ``max_depth`` levels counts as violating
+    at its deeper end.
+    """
+    m = seg.shape[0]
+    wt = np.zeros(m)
+    wd = np.zeros(m)
+    r2 = r * r
+    nchunks = (m + _CHUNK - 1) // _CHUNK
+    for ch in prange(nchunks):
+        cid = np.empty(maxwin, dtype=np.int64)
+        cbound = np.empty(maxwin, dtype=np.float64)
+        warm = -1
+        cap = 64
+        q0 = np.empty(cap)
+        q1 = np.empty(cap)
+        e0 = np.empty(cap)
+        e1 = np.empty(cap)
+        for i in range(ch * _CHUNK, min(m, (ch + 1) * _CHUNK)):
+            s = seg[i]
+            ax, ay, az = P[s, 0], P[s, 1], P[s, 2]
+            vx, vy, vz = P[s + 1, 0] - ax, P[s + 1, 1] - ay, P[s + 1, 2] - az
+            L = math.sqrt(vx * vx + vy * vy + vz * vz)
+            n = max(int(math.ceil(L / l_safe)), 1)
+            if n > cap:
+                while cap < n:
+                    cap *= 2
+                q0 = np.empty(cap)
+                q1 = np.empty(cap)
+                e0 = np.empty(cap)
+                e1 = np.empty(cap)
+            # level 0: equal pieces; their inner ends are dropped
+            best_d = 0.0
+            best_t = 0.0
+            dprev = 0.0
+            for j in range(n):
+                tb = (j + 1) / n
+                db = 0.0
+                if j < n - 1:
+                    zx = ax + tb * vx
+                    zy = ay + tb * vy
+                    zz = az + tb * vz
+                    h, tri = _drop_point(zx, zy, r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax,
+                                         EB, warm, cid, cbound, zz)
+                    if tri >= 0:
+                        warm = tri
+                    db = h - zz
+                    if db > thresh and db > best_d:
+                        best_d = db
+                        best_t = tb
+                q0[j] = j / n
+                q1[j] = tb
+                e0[j] = dprev
+                e1[j] = db
+                dprev = db
+            k = n
+            level = 0
+            while best_d <= thresh and k > 0:
+                # keep the pieces whose bound fails
+                kk = 0
+                for j in range(k):
+                    l = (q1[j] - q0[j]) * L
+                    if not _piece_ok(r, e0[j], e1[j], l * l, floor2):
+                        q0[kk] = q0[j]
+                        q1[kk] = q1[j]
+                        e0[kk] = e0[j]
+                        e1[kk] = e1[j]
+                        kk += 1
+                k = kk
+                if k == 0:
+                    break
+                if level == max_depth:  # undecided: the deeper end counts as violating
+                    for j in range(k):
+                        dd = max(e0[j], e1[j])
+                        tt = q0[j] if e0[j] >= e1[j] else q1[j]
+                        dd = max(dd, thresh * (1.0 + 1e-12) + 1e-300)
+                        if dd > best_d:
+                            best_d = dd
+                            best_t = tt
+                    break
+                if 2 * k > cap:
+                    while cap < 2 * k:
+                        cap *= 2
+                    n0 = np.empty(cap)
+                    n0[:k] = q0[:k]
+                    q0 = n0
+                    n1 = np.empty(cap)
+                    n1[:k] = q1[:k]
+                    q1 = n1
+                    m0 = np.empty(cap)
+                    m0[:k] = e0[:k]
+                    e0 = m0
+                    m1 = np.empty(cap)
+                    m1[:k] = e1[:k]
+                    e1 = m1
+                # drop the midpoints; split the pieces in place (right halves appended)
+                for j in range(k):
+                    tm = 0.5 * (q0[j] + q1[j])
+                    zx = ax + tm * vx
+                    zy = ay + tm * vy
+                    zz = az + tm * vz
+                    h, tri = _drop_point(zx, zy, r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax,
+                                         EB, warm, cid, cbound, zz)
+                    if tri >= 0:
+                        warm = tri
+                    dm = h - zz
+                    if dm > thresh and dm > best_d:
+                        best_d = dm
+                        best_t = tm
+                    q0[k + j] = tm
+                    q1[k + j] = q1[j]
+                    e0[k + j] = dm
+                    e1[k + j] = e1[j]
+                    q1[j] = tm
+                    e1[j] = dm
+                k = 2 * k
+                level += 1
+            if best_d > thresh:
+                wt[i] = best_t
+                wd[i] = best_d
+    return wt, wd
+
+
 @njit(cache=True)
 def _build_grid(B, gx0, gy0, cell, ncx, ncy):
     """CSR lists of triangles per cell (by XY box overlap) and the cells' highest top."""
@@ -657,68 +798,12 @@ class BallCutter:
         return P
 
     def _worst_points(self, P, seg, thresh, floor2, max_depth):
-        """Bisection of moves ``seg``: the deepest violating chord point of each (or 0, 0)."""
-        r = self.radius
-        l_safe = 2.0 * math.sqrt(r * r - floor2)
-        a = P[seg]
-        v = P[seg + 1] - a
-        L = np.linalg.norm(v, axis=1)
-        worst_t = np.zeros(seg.size)
-        worst_d = np.zeros(seg.size)
-        # First cut every move into equal pieces no longer than L_safe (those pass at once
-        # if their ends lie on D); the pending pieces are (owner = index into seg, t0, t1,
-        # d0, d1).
-        n = np.maximum(np.ceil(L / l_safe), 1.0).astype(np.int64)
-        own = np.repeat(np.arange(seg.size), n)
-        j = np.arange(own.size) - np.repeat(np.cumsum(n) - n, n)
-        t0 = j / n[own]
-        t1 = (j + 1) / n[own]
-        d1 = np.zeros(own.size)
-        inner = t1 < 1.0  # the piece's end is a sample inside the move
-        Q = a[own[inner]] + t1[inner, None] * v[own[inner]]
-        D, _ = self._drop(Q[:, :2], Q[:, 2])
-        d1[inner] = D - Q[:, 2]
-        d0 = np.zeros(own.size)
-        d0[1:][inner[:-1]] = d1[:-1][inner[:-1]]
-        viol = d1 > thresh
-        if viol.any():
-            _record(worst_t, worst_d, own[viol], t1[viol], d1[viol])
-            go = worst_d[own] <= thresh
-            own, t0, t1, d0, d1 = own[go], t0[go], t1[go], d0[go], d1[go]
-        for level in range(max_depth + 1):
-            if own.size == 0:
-                break
-            l2 = ((t1 - t0) * L[own]) ** 2
-            fa = (r - d0) ** 2
-            fb = (r - d1) ** 2
-            ts = np.clip((fa - fb + l2) / np.maximum(2.0 * l2, 1e-300), 0.0, 1.0)
-            fmin = fa + ts * (fb - fa - l2) + ts * ts * l2
-            keep = fmin < floor2
-            if level == max_depth:  # undecided: count the deeper end as violating
-                k = np.flatnonzero(keep)
-                deep = np.where(d0[k] >= d1[k], t0[k], t1[k])
-                dd = np.maximum(np.maximum(d0[k], d1[k]), np.nextafter(thresh, np.inf))
-                _record(worst_t, worst_d, own[k], deep, dd)
-                break
-            own, t0, t1, d0, d1 = own[keep], t0[keep], t1[keep], d0[keep], d1[keep]
-            if own.size == 0:
-                break
-            tm = 0.5 * (t0 + t1)
-            Q = a[own] + tm[:, None] * v[own]
-            # only how far D rises above the chord matters: the chord height is the floor
-            D, _ = self._drop(Q[:, :2], Q[:, 2])
-            dm = D - Q[:, 2]
-            viol = dm > thresh
-            if viol.any():
-                _record(worst_t, worst_d, own[viol], tm[viol], dm[viol])
-            # a move with a violation is settled for this round (its worst point is
-            # inserted and both new moves are checked again)
-            go = ~viol & (worst_d[own] <= thresh)
-            own, t0, t1, d0, d1, tm, dm = own[go], t0[go], t1[go], d0[go], d1[go], tm[go], dm[go]
-            own = np.concatenate([own, own])
-            t0, t1 = np.concatenate([t0, tm]), np.concatenate([tm, t1])
-            d0, d1 = np.concatenate([d0, dm]), np.concatenate([dm, d1])
-        return worst_t, worst_d
+        """The deepest violating chord point of each move ``seg`` (or (0, 0)): see ``_worst_points``."""
+        gx0, gy0, cell, ncx, ncy = self._grid
+        l_safe = 2.0 * math.sqrt(self.radius ** 2 - floor2)
+        return _worst_points(P, seg.astype(np.int64), self.radius, thresh, floor2, l_safe, max_depth,
+                             self._T, self._B, gx0, gy0, cell, ncx, ncy, self._cstart, self._ctri,
+                             self._czmax, self._EB, self._maxwin)
 
     # ------------------------------------------------------------------ tool tip
     def tip(self, centers) -> np.ndarray:
@@ -727,16 +812,6 @@ class BallCutter:
         out = P.copy()
         out[:, 2] -= self.radius
         return out
-
-
-def _record(worst_t, worst_d, owner, t, d):
-    """Keep, per owner, the chord parameter ``t`` of the largest depth ``d``."""
-    o = np.lexsort((-d, owner))
-    first = o[np.r_[0, np.flatnonzero(np.diff(owner[o])) + 1]]
-    w = owner[first]
-    better = d[first] > worst_d[w]
-    worst_t[w[better]] = t[first][better]
-    worst_d[w[better]] = d[first][better]
 
 
 def _insert(P, check, after, newpts, recheck):

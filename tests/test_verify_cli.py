@@ -58,6 +58,20 @@ def test_exit_1_when_limits_exceeded(files, capsys):
     assert "FAIL: scallop p99.9" in capsys.readouterr().out
 
 
+def test_rest_figures_on_a_plane(files, tmp_path, capsys):
+    # a raster too coarse for the limit on a plane: nothing is rest material, all of it is
+    # the program's own scallop
+    mesh, program = files
+    coarse = program("coarse.nc", w=2.0)
+    rep = tmp_path / "r.json"
+    assert main(["verify", str(mesh), str(coarse), "-r", "3", "--scallop", "0.05", "--samples", "20000",
+                 "--judge", "reachable", "--rest", "--report", str(rep)]) == 1
+    assert "rest material: 0 of the" in capsys.readouterr().out
+    R = json.loads(rep.read_text())["reachable"]
+    assert R["rest"]["above_limit"] > 0 and R["rest"]["beyond_any_ball"] == 0
+    assert R["rest"]["p999_over_rest"] == pytest.approx(R["scallop"]["p999"], abs=1e-9)
+
+
 def test_bad_input_exit_2(files, tmp_path, capsys):
     mesh, program = files
     nc = program("good.nc")
@@ -72,3 +86,6 @@ def test_bad_input_exit_2(files, tmp_path, capsys):
     assert main(["verify", str(mesh), str(nc), "-r", "3", "--report", str(tmp_path / "no" / "r.json")]) == 2
     assert "does not exist" in capsys.readouterr().err
     assert main(["verify", str(mesh), str(nc), "-r", "3", "--samples", "0"]) == 2
+    capsys.readouterr()
+    assert main(["verify", str(mesh), str(nc), "-r", "3", "--rest"]) == 2
+    assert "--rest needs --scallop" in capsys.readouterr().err

@@ -33,6 +33,10 @@ def add_arguments(parser) -> None:
     parser.add_argument("--judge", choices=("interior", "reachable"), default="interior",
                         help="check the scallop limit on all interior samples (default) or only where a "
                              "3-axis ball can reach (undercuts and pockets tighter than the ball excluded)")
+    parser.add_argument("--rest", action="store_true",
+                        help="with --scallop: at the reachable samples left above H, search the ball positions "
+                             "and report how many no ball can bring within H (rest material for a smaller tool) "
+                             "and the scallop above that rest; pass/fail does not change")
     parser.add_argument("--report", default=None, metavar="OUT.json", help="write a JSON report")
     parser.add_argument("--plot", default=None, metavar="OUT.png", help="write a PNG heat map")
 
@@ -79,6 +83,12 @@ def table(summary: dict) -> str:
     out += [f"{r[0]:<{w0}}{r[1]:>30}{r[2]:>20}{r[3]:>16}" for r in rows]
     out.append(f"unreachable by a 3-axis ball (undercut, or tighter than the ball): "
                f"{100 * q['unreachable_fraction']:.3g} % of the interior; limits judged on: {summary['judged_on']}")
+    rest = q.get("rest")
+    if rest is not None:
+        out.append(f"rest material: {rest['beyond_any_ball']} of the {rest['above_limit']} reachable samples above H "
+                   f"cannot be brought within H by any ball position found "
+                   f"({rest.get('beyond_any_ball_per_mille', 0.0):.3g} per mille of the reachable); without them "
+                   f"p99.9 {_fmt(rest['p999_without_them'])}; above the rest p99.9 {_fmt(rest['p999_over_rest'])}")
     g = summary
     if g["gouge_where"] is not None:
         x, y, z = g["gouge_where"]
@@ -103,6 +113,8 @@ def run(args) -> int:
     _positive("--chord-tol", args.chord_tol)
     if args.samples < 1:
         raise ConformillError(f"--samples must be >= 1, got {args.samples}")
+    if args.rest and args.scallop is None:
+        raise ConformillError("--rest needs --scallop (the rest is searched where more than H is left)")
     check_writable(args.report, args.plot)
 
     from conformill.mesh.io import read_mesh
@@ -122,7 +134,7 @@ def run(args) -> int:
     try:
         res = verify(mesh, program, args.tool_radius, n_samples=args.samples, seed=args.seed,
                      scallop=args.scallop, gouge=args.gouge, normals=args.normals, judge=args.judge,
-                     progress=bar.update if bar is not None else None)
+                     progress=bar.update if bar is not None else None, rest=args.rest)
     finally:
         if bar is not None:
             bar.close()

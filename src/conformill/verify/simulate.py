@@ -24,8 +24,10 @@ Rapid moves (G0) are checked against the mesh triangles: the clearance of a rapi
 ball passes through the part. Vertical upward rapids (retracts) are reported apart: a
 retract from the end of a cut starts on the part by design.
 
-This module shares no code with the planner (``conformill.param``, ``geometry``,
-``planning``, ``patterns``, ``cutter``, ``mapping``) so that it can catch its mistakes.
+The material simulation shares no code with the planner (``conformill.param``,
+``geometry``, ``planning``, ``patterns``, ``cutter``, ``mapping``) so that it can catch its
+mistakes. Only the optional rest-material figures (``verify(..., rest=True)``) use the
+planner's drop-cutter, through :mod:`conformill.verify.rest`.
 """
 
 from __future__ import annotations
@@ -734,6 +736,32 @@ def _stats(rem, gouge, P, gline, H, gouge_tol):
     return out
 
 
+def _rest_figures(V, F, r, samples, rem, ok, H):
+    """Rest material at the reachable samples left with more than ``H`` (see ``verify``)."""
+    from conformill.cutter import BallCutter
+    from conformill.verify.rest import rest_material
+
+    fin = ok & np.isfinite(rem)
+    above = np.flatnonzero(fin & (rem > H))
+    out = {"above_limit": int(above.size), "beyond_any_ball": 0, "p999_without_them": math.nan,
+           "p999_over_rest": math.nan}
+    if not fin.any():
+        return out
+    t = np.zeros(0)
+    if above.size:
+        t = rest_material(BallCutter(V, F, r), samples.points[above], samples.normals[above])
+    beyond = t > H
+    keep = fin.copy()
+    keep[above[beyond]] = False
+    own = rem.copy()
+    own[above] = rem[above] - np.minimum(t, rem[above])
+    out["beyond_any_ball"] = int(beyond.sum())
+    out["beyond_any_ball_per_mille"] = 1000.0 * beyond.sum() / fin.sum()
+    out["p999_without_them"] = float(np.percentile(rem[keep], 99.9)) if keep.any() else math.nan
+    out["p999_over_rest"] = float(np.percentile(own[fin], 99.9))
+    return out
+
+
 def unreachable_samples(samples: SurfaceSamples, V: np.ndarray, tool_radius: float, depth: float) -> np.ndarray:
     """Samples that no 3-axis ball position can bring within ``depth`` of the surface.
 
@@ -825,7 +853,7 @@ def verify(mesh, program: Program, tool_radius: float, n_samples: int = 200_000,
            scallop: float | None = None, gouge: float | None = None, normals: str = "vertex",
            ray_cap: float | None = None, clearance_cap: float = 5.0, gouge_tol: float = 1e-3,
            samples: SurfaceSamples | None = None, progress=None, judge: str = "interior",
-           reach_depth: float | None = None) -> VerifyResult:
+           reach_depth: float | None = None, rest: bool = False) -> VerifyResult:
     """Simulate ``program`` with a ball of radius ``tool_radius`` on ``mesh`` and measure it.
 
     Parameters
@@ -860,6 +888,14 @@ def verify(mesh, program: Program, tool_radius: float, n_samples: int = 200_000,
     reach_depth : float, optional
         Material depth (mm) that makes a sample unreachable; default ``scallop`` (or
         ``0.01 r``).
+    rest : bool
+        With ``scallop``: at every reachable interior sample left with more than
+        ``scallop``, search the ball positions for the least material any of them leaves
+        (:func:`conformill.verify.rest.rest_material`) and report, in
+        ``summary["reachable"]["rest"]``, how many of those samples no ball brings within
+        ``scallop`` (material for a smaller tool, whatever the stepover), the p99.9 without
+        them, and the p99.9 of the material above that rest (the program's own share). The
+        pass/fail check does not change.
 
     Returns
     -------
@@ -902,6 +938,8 @@ def verify(mesh, program: Program, tool_radius: float, n_samples: int = 200_000,
     ok = interior & ~blocked
     s_reach = _stats(rem[ok], g[ok], samples.points[ok], gouge_line[ok], scallop, gouge_tol)
     s_reach["unreachable_fraction"] = float((interior & blocked).sum() / max(int(interior.sum()), 1))
+    if rest and scallop is not None:
+        s_reach["rest"] = _rest_figures(V, F, r, samples, rem, ok, scallop)
     summary = {
         "tool_radius": r,
         "samples": len(samples),

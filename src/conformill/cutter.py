@@ -333,8 +333,10 @@ def _piece_ok(r, d0, d1, l2, floor2):
 @njit(cache=True, parallel=True)
 def _worst_points(P, seg, r, thresh, floor2, l_safe, max_depth, T, B, gx0, gy0, cell, ncx, ncy,
                   cstart, ctri, czmax, EB, maxwin):
-    """Per move ``P[seg[i]] -> P[seg[i] + 1]``: chord parameter and depth below the drop
-    surface of its deepest violating point, or (0, 0) when the bound proves the move safe.
+    """Per move ``P[seg[i]] -> P[seg[i] + 1]``: chord parameter, depth below the drop
+    surface and drop height of its deepest violating point, or (0, 0, nan) when the bound
+    proves the move safe (the drop height is nan too for a piece undecided at
+    ``max_depth``).
 
     The move is cut into equal pieces no longer than ``l_safe``; the pieces are then
     bisected level by level while the bound fails; the first level with a violation (a
@@ -345,6 +347,7 @@ def _worst_points(P, seg, r, thresh, floor2, l_safe, max_depth, T, B, gx0, gy0, 
     m = seg.shape[0]
     wt = np.zeros(m)
     wd = np.zeros(m)
+    wz = np.full(m, np.nan)
     r2 = r * r
     nchunks = (m + _CHUNK - 1) // _CHUNK
     for ch in prange(nchunks):
@@ -372,6 +375,7 @@ def _worst_points(P, seg, r, thresh, floor2, l_safe, max_depth, T, B, gx0, gy0, 
             # level 0: equal pieces; their inner ends are dropped
             best_d = 0.0
             best_t = 0.0
+            best_h = np.nan
             dprev = 0.0
             for j in range(n):
                 tb = (j + 1) / n
@@ -388,6 +392,7 @@ def _worst_points(P, seg, r, thresh, floor2, l_safe, max_depth, T, B, gx0, gy0, 
                     if db > thresh and db > best_d:
                         best_d = db
                         best_t = tb
+                        best_h = h
                 q0[j] = j / n
                 q1[j] = tb
                 e0[j] = dprev
@@ -417,6 +422,7 @@ def _worst_points(P, seg, r, thresh, floor2, l_safe, max_depth, T, B, gx0, gy0, 
                         if dd > best_d:
                             best_d = dd
                             best_t = tt
+                            best_h = np.nan
                     break
                 if 2 * k > cap:
                     while cap < 2 * k:
@@ -447,6 +453,7 @@ def _worst_points(P, seg, r, thresh, floor2, l_safe, max_depth, T, B, gx0, gy0, 
                     if dm > thresh and dm > best_d:
                         best_d = dm
                         best_t = tm
+                        best_h = h
                     q0[k + j] = tm
                     q1[k + j] = q1[j]
                     e0[k + j] = dm
@@ -458,7 +465,8 @@ def _worst_points(P, seg, r, thresh, floor2, l_safe, max_depth, T, B, gx0, gy0, 
             if best_d > thresh:
                 wt[i] = best_t
                 wd[i] = best_d
-    return wt, wd
+                wz[i] = best_h
+    return wt, wd, wz
 
 
 @njit(cache=True)
@@ -781,7 +789,7 @@ class BallCutter:
             seg = np.flatnonzero(check)
             if seg.size == 0:
                 break
-            worst_t, worst_d = self._worst_points(P, seg, thresh, floor2, max_depth)
+            worst_t, worst_d, worst_z = self._worst_points(P, seg, thresh, floor2, max_depth)
             bad = worst_d > thresh
             if not bad.any():
                 break
@@ -789,7 +797,11 @@ class BallCutter:
             a = P[seg_bad]
             b = P[seg_bad + 1]
             newpts = a + worst_t[bad, None] * (b - a)
-            newpts[:, 2] = self.drop(newpts[:, :2])
+            # the drop height found by the check itself (a plain drop where it is not known)
+            newpts[:, 2] = worst_z[bad]
+            unknown = np.flatnonzero(np.isnan(newpts[:, 2]))
+            if unknown.size:
+                newpts[unknown, 2] = self.drop(newpts[unknown, :2])
             P, check = _insert(P, np.zeros(len(P) - 1, dtype=bool), seg_bad, newpts, recheck=True)
         else:
             if check.any():
@@ -798,7 +810,7 @@ class BallCutter:
         return P
 
     def _worst_points(self, P, seg, thresh, floor2, max_depth):
-        """The deepest violating chord point of each move ``seg`` (or (0, 0)): see ``_worst_points``."""
+        """``(t, depth, drop height)`` of the deepest violating chord point of each move ``seg``: see ``_worst_points``."""
         gx0, gy0, cell, ncx, ncy = self._grid
         l_safe = 2.0 * math.sqrt(self.radius ** 2 - floor2)
         return _worst_points(P, seg.astype(np.int64), self.radius, thresh, floor2, l_safe, max_depth,

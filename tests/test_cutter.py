@@ -373,6 +373,49 @@ class TestRefine:
         tri0 = np.concatenate([np.asarray(n, dtype=np.int64) for n in near0])
         assert segment_triangle_distance(P[:-1], P[1:], m.V, m.F, seg0, tri0).min() < r - tol
 
+    @pytest.mark.parametrize("below, inserted", [(0.00499, False), (0.0051, True)])
+    def test_long_move_just_below_the_drop_surface(self, below, inserted):
+        # A 40 mm move on a plane, `below` under the drop surface everywhere: within tol/2 =
+        # 0.005 it is safe but the bound only proves it on pieces of ~0.015 mm (thousands of
+        # pieces: the bisection's buffers grow), beyond it the deepest point is lifted.
+        m = syn.plane(size=60.0, spacing=2.0, jitter=0.0, z=0.0)
+        r = 3.0
+        cut = BallCutter(m.V, m.F, r)
+        P = np.array([[-20.0, 0.3, r - below], [20.0, 0.7, r - below]])
+        Q = cut.refine(P, 0.01)
+        if inserted:
+            assert len(Q) > 2
+            np.testing.assert_allclose(Q[1:-1, 2], r, atol=1e-9)  # lifted onto D
+        else:
+            np.testing.assert_array_equal(Q, P)
+
+    def test_nearly_flat_dome_long_move(self):
+        # a 32 mm move over a very flat sphere cap, both ends on the drop surface: 93 first
+        # pieces (more than the 64 the buffers start with)
+        m = syn.sphere_cap(R=30000.0, radius_xy=25.0, spacing=1.0)
+        cut = BallCutter(m.V, m.F, 3.0)
+        xy = np.array([[-16.0, 0.37], [16.0, 0.41]])
+        P = np.column_stack([xy, cut.drop(xy)])
+        Q = cut.refine(P, 0.01)
+        assert np.isfinite(Q).all() and _is_subsequence(P, Q)
+        assert _max_dip(cut, Q) <= 0.005
+
+    def test_piece_bound_is_the_minimum_over_the_piece(self):
+        # f(t) = (1-t)(r-d0)^2 + t(r-d1)^2 - t(1-t) l^2 >= (r - tol/2)^2 for all t in [0, 1]
+        from conformill.cutter import _piece_ok
+
+        rng = np.random.default_rng(3)
+        r, thr = 3.0, 0.005
+        floor2 = (r - thr) ** 2
+        t = np.linspace(0.0, 1.0, 20001)
+        for _ in range(400):
+            d0, d1 = rng.uniform(0.0, thr, 2) * rng.choice([0.0, 1.0], 2)
+            ln = rng.uniform(0.0, 0.5)
+            f = (1 - t) * (r - d0) ** 2 + t * (r - d1) ** 2 - t * (1 - t) * ln * ln
+            brute = f.min() >= floor2
+            if abs(f.min() - floor2) > 1e-9:  # away from the tie
+                assert _piece_ok(r, d0, d1, ln * ln, floor2) == brute
+
     def test_flat_needs_nothing_and_short_inputs(self):
         m = syn.plane(size=50.0, spacing=5.0, jitter=0.2, z=1.0)
         cut = BallCutter(m.V, m.F, R_BALL)

@@ -107,7 +107,6 @@ def test_rest_material_in_a_v_groove_matches_the_circle():
     rim = exact <= 0.05
     assert rim.sum() >= 10
     np.testing.assert_allclose(got[rim], exact[rim], atol=2e-4, rtol=1e-3)
-    assert np.all(got[~rim] > 0.05)
     # the tangent ball alone, dropped onto the part, leaves much more inside the band
     band = exact > 0.01
     assert np.all(tangent_rest(cut, P[band], N[band]) > 2 * exact[band])

@@ -330,6 +330,113 @@ def _piece_ok(r, d0, d1, l2, floor2):
     return fa + ts * (fb - fa - l2) + ts * ts * l2 >= floor2
 
 
+@njit(cache=True)
+def _grow(q0, q1, e0, e1, k, need):
+    """Buffers of at least ``need`` entries holding the first ``k`` of the old ones."""
+    cap = q0.shape[0]
+    while cap < need:
+        cap *= 2
+    n0 = np.empty(cap)
+    n1 = np.empty(cap)
+    m0 = np.empty(cap)
+    m1 = np.empty(cap)
+    n0[:k] = q0[:k]
+    n1[:k] = q1[:k]
+    m0[:k] = e0[:k]
+    m1[:k] = e1[:k]
+    return n0, n1, m0, m1
+
+
+@njit(cache=True)
+def _check_move(ax, ay, az, vx, vy, vz, r, thresh, floor2, l_safe, max_depth, T, B, gx0, gy0, cell,
+                ncx, ncy, cstart, ctri, czmax, EB, warm, cid, cbound, q0, q1, e0, e1):
+    """Bisection of one move (see ``_worst_points``).
+
+    Returns ``(t, depth, drop height, warm, q0, q1, e0, e1)``: the deepest violating point
+    (``depth`` 0 when the move is proved safe), the warm-start triangle for the next drop
+    and the piece buffers (grown when needed; kept for the next move).
+    """
+    r2 = r * r
+    L = math.sqrt(vx * vx + vy * vy + vz * vz)
+    n = max(int(math.ceil(L / l_safe)), 1)
+    if n > q0.shape[0]:
+        q0, q1, e0, e1 = _grow(q0, q1, e0, e1, 0, n)
+    # level 0: equal pieces; their inner ends are dropped
+    best_d = 0.0
+    best_t = 0.0
+    best_h = np.nan
+    dprev = 0.0
+    for j in range(n):
+        tb = (j + 1) / n
+        db = 0.0
+        if j < n - 1:
+            zz = az + tb * vz
+            h, tri = _drop_point(ax + tb * vx, ay + tb * vy, r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart,
+                                 ctri, czmax, EB, warm, cid, cbound, zz)
+            if tri >= 0:
+                warm = tri
+            db = h - zz
+            if db > thresh and db > best_d:
+                best_d = db
+                best_t = tb
+                best_h = h
+        q0[j] = j / n
+        q1[j] = tb
+        e0[j] = dprev
+        e1[j] = db
+        dprev = db
+    k = n
+    level = 0
+    while best_d <= thresh and k > 0:
+        # keep the pieces whose bound fails
+        kk = 0
+        for j in range(k):
+            ln = (q1[j] - q0[j]) * L
+            if not _piece_ok(r, e0[j], e1[j], ln * ln, floor2):
+                q0[kk] = q0[j]
+                q1[kk] = q1[j]
+                e0[kk] = e0[j]
+                e1[kk] = e1[j]
+                kk += 1
+        k = kk
+        if k == 0:
+            break
+        if level == max_depth:  # undecided: the deeper end counts as violating
+            for j in range(k):
+                dd = max(max(e0[j], e1[j]), thresh * (1.0 + 1e-12) + 1e-300)
+                if dd > best_d:
+                    best_d = dd
+                    best_t = q0[j] if e0[j] >= e1[j] else q1[j]
+                    best_h = np.nan
+            break
+        if 2 * k > q0.shape[0]:
+            q0, q1, e0, e1 = _grow(q0, q1, e0, e1, k, 2 * k)
+        # drop the midpoints; split the pieces in place (right halves appended)
+        for j in range(k):
+            tm = 0.5 * (q0[j] + q1[j])
+            zz = az + tm * vz
+            h, tri = _drop_point(ax + tm * vx, ay + tm * vy, r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart,
+                                 ctri, czmax, EB, warm, cid, cbound, zz)
+            if tri >= 0:
+                warm = tri
+            dm = h - zz
+            if dm > thresh and dm > best_d:
+                best_d = dm
+                best_t = tm
+                best_h = h
+            q0[k + j] = tm
+            q1[k + j] = q1[j]
+            e0[k + j] = dm
+            e1[k + j] = e1[j]
+            q1[j] = tm
+            e1[j] = dm
+        k = 2 * k
+        level += 1
+    if best_d <= thresh:
+        return 0.0, 0.0, np.nan, warm, q0, q1, e0, e1
+    return best_t, best_d, best_h, warm, q0, q1, e0, e1
+
+
 @njit(cache=True, parallel=True)
 def _worst_points(P, seg, r, thresh, floor2, l_safe, max_depth, T, B, gx0, gy0, cell, ncx, ncy,
                   cstart, ctri, czmax, EB, maxwin):
@@ -342,130 +449,32 @@ def _worst_points(P, seg, r, thresh, floor2, l_safe, max_depth, T, B, gx0, gy0, 
     bisected level by level while the bound fails; the first level with a violation (a
     point more than ``thresh`` below the drop surface) settles the move with its deepest
     violating point; a piece still undecided after ``max_depth`` levels counts as violating
-    at its deeper end.
+    at its deeper end. The work of one move is :func:`_check_move` (a serial function, so
+    that its growing buffers stay private to the thread).
     """
     m = seg.shape[0]
     wt = np.zeros(m)
     wd = np.zeros(m)
     wz = np.full(m, np.nan)
-    r2 = r * r
     nchunks = (m + _CHUNK - 1) // _CHUNK
     for ch in prange(nchunks):
         cid = np.empty(maxwin, dtype=np.int64)
         cbound = np.empty(maxwin, dtype=np.float64)
+        q0 = np.empty(64)
+        q1 = np.empty(64)
+        e0 = np.empty(64)
+        e1 = np.empty(64)
         warm = -1
-        cap = 64
-        q0 = np.empty(cap)
-        q1 = np.empty(cap)
-        e0 = np.empty(cap)
-        e1 = np.empty(cap)
         for i in range(ch * _CHUNK, min(m, (ch + 1) * _CHUNK)):
             s = seg[i]
             ax, ay, az = P[s, 0], P[s, 1], P[s, 2]
-            vx, vy, vz = P[s + 1, 0] - ax, P[s + 1, 1] - ay, P[s + 1, 2] - az
-            L = math.sqrt(vx * vx + vy * vy + vz * vz)
-            n = max(int(math.ceil(L / l_safe)), 1)
-            if n > cap:
-                while cap < n:
-                    cap *= 2
-                q0 = np.empty(cap)
-                q1 = np.empty(cap)
-                e0 = np.empty(cap)
-                e1 = np.empty(cap)
-            # level 0: equal pieces; their inner ends are dropped
-            best_d = 0.0
-            best_t = 0.0
-            best_h = np.nan
-            dprev = 0.0
-            for j in range(n):
-                tb = (j + 1) / n
-                db = 0.0
-                if j < n - 1:
-                    zx = ax + tb * vx
-                    zy = ay + tb * vy
-                    zz = az + tb * vz
-                    h, tri = _drop_point(zx, zy, r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax,
-                                         EB, warm, cid, cbound, zz)
-                    if tri >= 0:
-                        warm = tri
-                    db = h - zz
-                    if db > thresh and db > best_d:
-                        best_d = db
-                        best_t = tb
-                        best_h = h
-                q0[j] = j / n
-                q1[j] = tb
-                e0[j] = dprev
-                e1[j] = db
-                dprev = db
-            k = n
-            level = 0
-            while best_d <= thresh and k > 0:
-                # keep the pieces whose bound fails
-                kk = 0
-                for j in range(k):
-                    l = (q1[j] - q0[j]) * L
-                    if not _piece_ok(r, e0[j], e1[j], l * l, floor2):
-                        q0[kk] = q0[j]
-                        q1[kk] = q1[j]
-                        e0[kk] = e0[j]
-                        e1[kk] = e1[j]
-                        kk += 1
-                k = kk
-                if k == 0:
-                    break
-                if level == max_depth:  # undecided: the deeper end counts as violating
-                    for j in range(k):
-                        dd = max(e0[j], e1[j])
-                        tt = q0[j] if e0[j] >= e1[j] else q1[j]
-                        dd = max(dd, thresh * (1.0 + 1e-12) + 1e-300)
-                        if dd > best_d:
-                            best_d = dd
-                            best_t = tt
-                            best_h = np.nan
-                    break
-                if 2 * k > cap:
-                    while cap < 2 * k:
-                        cap *= 2
-                    n0 = np.empty(cap)
-                    n0[:k] = q0[:k]
-                    q0 = n0
-                    n1 = np.empty(cap)
-                    n1[:k] = q1[:k]
-                    q1 = n1
-                    m0 = np.empty(cap)
-                    m0[:k] = e0[:k]
-                    e0 = m0
-                    m1 = np.empty(cap)
-                    m1[:k] = e1[:k]
-                    e1 = m1
-                # drop the midpoints; split the pieces in place (right halves appended)
-                for j in range(k):
-                    tm = 0.5 * (q0[j] + q1[j])
-                    zx = ax + tm * vx
-                    zy = ay + tm * vy
-                    zz = az + tm * vz
-                    h, tri = _drop_point(zx, zy, r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax,
-                                         EB, warm, cid, cbound, zz)
-                    if tri >= 0:
-                        warm = tri
-                    dm = h - zz
-                    if dm > thresh and dm > best_d:
-                        best_d = dm
-                        best_t = tm
-                        best_h = h
-                    q0[k + j] = tm
-                    q1[k + j] = q1[j]
-                    e0[k + j] = dm
-                    e1[k + j] = e1[j]
-                    q1[j] = tm
-                    e1[j] = dm
-                k = 2 * k
-                level += 1
-            if best_d > thresh:
-                wt[i] = best_t
-                wd[i] = best_d
-                wz[i] = best_h
+            t, d, h, warm, q0, q1, e0, e1 = _check_move(
+                ax, ay, az, P[s + 1, 0] - ax, P[s + 1, 1] - ay, P[s + 1, 2] - az, r, thresh, floor2, l_safe,
+                max_depth, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, warm, cid, cbound,
+                q0, q1, e0, e1)
+            wt[i] = t
+            wd[i] = d
+            wz[i] = h
     return wt, wd, wz
 
 
@@ -802,7 +811,7 @@ class BallCutter:
             unknown = np.flatnonzero(np.isnan(newpts[:, 2]))
             if unknown.size:
                 newpts[unknown, 2] = self.drop(newpts[unknown, :2])
-            P, check = _insert(P, np.zeros(len(P) - 1, dtype=bool), seg_bad, newpts, recheck=True)
+            P, check = _insert(P, seg_bad, newpts)
         else:
             if check.any():
                 log.warning("cutter.refine: stopped after %d rounds with %d moves unchecked",
@@ -812,7 +821,7 @@ class BallCutter:
     def _worst_points(self, P, seg, thresh, floor2, max_depth):
         """``(t, depth, drop height)`` of the deepest violating chord point of each move ``seg``: see ``_worst_points``."""
         gx0, gy0, cell, ncx, ncy = self._grid
-        l_safe = 2.0 * math.sqrt(self.radius ** 2 - floor2)
+        l_safe = 2.0 * math.sqrt(thresh * (2.0 * self.radius - thresh))  # r^2 - floor2, without cancellation
         return _worst_points(P, seg.astype(np.int64), self.radius, thresh, floor2, l_safe, max_depth,
                              self._T, self._B, gx0, gy0, cell, ncx, ncy, self._cstart, self._ctri,
                              self._czmax, self._EB, self._maxwin)
@@ -826,11 +835,11 @@ class BallCutter:
         return out
 
 
-def _insert(P, check, after, newpts, recheck):
-    """Insert ``newpts`` after rows ``after`` (sorted); return points and segment flags.
+def _insert(P, after, newpts):
+    """Insert ``newpts`` after rows ``after`` (sorted); return the points and the moves to check.
 
-    Segments touching an inserted point are flagged for re-checking; the others keep
-    ``False`` (already verified).
+    The moves that touch an inserted point are flagged for checking; the others are
+    already verified.
     """
     k = len(P)
     m = len(after)
@@ -842,9 +851,8 @@ def _insert(P, check, after, newpts, recheck):
     Q[newpos_old] = P
     Q[newpos_ins] = newpts
     chk = np.zeros(k + m - 1, dtype=bool)
-    if recheck:
-        chk[newpos_ins - 1] = True
-        chk[newpos_ins] = True
+    chk[newpos_ins - 1] = True
+    chk[newpos_ins] = True
     return Q, chk
 
 

@@ -347,7 +347,7 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
             ok = np.isfinite(centres[:, 2])
             centres = centres[ok]
             lifts.append(lift[ok])
-            # the centre path may dip at most e / 2 below the safe (drop) surface: half of
+            # no centre move cuts more than e / 2 into the part (an exact bound): half of
             # the gouge budget e, the other half left to the mesh facets between samples
             centres = cutter.refine(centres, e)
             # drop consecutive duplicates (a centre point path, link ends)

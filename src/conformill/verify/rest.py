@@ -56,7 +56,7 @@ def tangent_rest(cutter, P, N) -> np.ndarray:
     return _ray_gap(P, N, C, r)[:, 0]
 
 
-def rest_material(cutter, P, N, chunk: int = 2000, stop_below: float = -1.0) -> np.ndarray:
+def rest_material(cutter, P, N, chunk: int = 2000) -> np.ndarray:
     """Least material (mm) along ``N`` at ``P`` over ball centres on the drop surface near the tangent one.
 
     Parameters
@@ -65,9 +65,6 @@ def rest_material(cutter, P, N, chunk: int = 2000, stop_below: float = -1.0) -> 
         Drop-cutter of the part with the ball of the program.
     P, N : (k, 3) float64
         Samples on the part and unit normals towards the tool (``N_z > 0``).
-    stop_below : float
-        A sample whose rest is found at or below this value is not searched further (its
-        value is then only known to be at most ``stop_below``).
 
     Returns
     -------
@@ -84,7 +81,7 @@ def rest_material(cutter, P, N, chunk: int = 2000, stop_below: float = -1.0) -> 
         centre = (p + r * n)[:, :2]
         best = tangent_rest(cutter, p, n)
         for span in _SPANS:
-            go = np.flatnonzero(best > stop_below)
+            go = np.flatnonzero(best > 0.0)  # a sample inside the ball is done
             if go.size == 0:
                 break
             k = go.size

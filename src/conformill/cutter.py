@@ -347,6 +347,20 @@ def _grow(q0, q1, e0, e1, k, need):
     return n0, n1, m0, m1
 
 
+@njit(cache=True, inline="always")
+def _chord_drop(ax, ay, az, vx, vy, vz, t, r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB,
+                warm, cid, cbound):
+    """Drop height over the chord point ``a + t v`` with the chord height as floor.
+
+    Returns ``(max(drop, z), depth of the chord point below the drop surface (>= 0),
+    warm-start triangle for the next drop)``.
+    """
+    zz = az + t * vz
+    h, tri = _drop_point(ax + t * vx, ay + t * vy, r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri,
+                         czmax, EB, warm, cid, cbound, zz)
+    return h, h - zz, (tri if tri >= 0 else warm)
+
+
 @njit(cache=True)
 def _check_move(ax, ay, az, vx, vy, vz, r, thresh, floor2, l_safe, max_depth, T, B, gx0, gy0, cell,
                 ncx, ncy, cstart, ctri, czmax, EB, warm, cid, cbound, q0, q1, e0, e1):
@@ -370,12 +384,8 @@ def _check_move(ax, ay, az, vx, vy, vz, r, thresh, floor2, l_safe, max_depth, T,
         tb = (j + 1) / n
         db = 0.0
         if j < n - 1:
-            zz = az + tb * vz
-            h, tri = _drop_point(ax + tb * vx, ay + tb * vy, r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart,
-                                 ctri, czmax, EB, warm, cid, cbound, zz)
-            if tri >= 0:
-                warm = tri
-            db = h - zz
+            h, db, warm = _chord_drop(ax, ay, az, vx, vy, vz, tb, r, r2, T, B, gx0, gy0, cell, ncx, ncy,
+                                      cstart, ctri, czmax, EB, warm, cid, cbound)
             if db > thresh and db > best_d:
                 best_d = db
                 best_t = tb
@@ -414,12 +424,8 @@ def _check_move(ax, ay, az, vx, vy, vz, r, thresh, floor2, l_safe, max_depth, T,
         # drop the midpoints; split the pieces in place (right halves appended)
         for j in range(k):
             tm = 0.5 * (q0[j] + q1[j])
-            zz = az + tm * vz
-            h, tri = _drop_point(ax + tm * vx, ay + tm * vy, r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart,
-                                 ctri, czmax, EB, warm, cid, cbound, zz)
-            if tri >= 0:
-                warm = tri
-            dm = h - zz
+            h, dm, warm = _chord_drop(ax, ay, az, vx, vy, vz, tm, r, r2, T, B, gx0, gy0, cell, ncx, ncy,
+                                      cstart, ctri, czmax, EB, warm, cid, cbound)
             if dm > thresh and dm > best_d:
                 best_d = dm
                 best_t = tm

@@ -775,8 +775,11 @@ def unreachable_samples(samples: SurfaceSamples, V: np.ndarray, tool_radius: flo
 
     Both tests look at the samples and the mesh vertices (a k-d tree for the ball, a grid
     for the shank, exact against those points). That overestimates the true distance by at
-    most the sampling gap, so a sample is only ever wrongly counted *reachable*, never
-    wrongly excused: the test cannot hide a planner's mistake. It shares nothing with the
+    most the sampling gap, which can only count a sample *reachable* wrongly. The test
+    tries only the tangent ball, though, so it errs both ways at concave creases: in a
+    V-groove it excuses a band of wall that the ball sitting in the groove does bring
+    within ``depth``, and at a crease between facets it keeps samples that no ball brings
+    within ``depth`` (``verify(..., rest=True)`` counts those). It shares nothing with the
     planner's reachability analysis.
 
     Returns

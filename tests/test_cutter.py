@@ -215,6 +215,105 @@ def test_result_does_not_depend_on_order_or_grid():
     np.testing.assert_array_equal(BallCutter(m.V, m.F, 3.0, cell=4.0).drop(xy), z)
 
 
+def _tri_drop_all_features(p, tri, r):
+    """Closed-form drop onto one triangle by every feature (facet, 3 edges, 3 vertices)."""
+    x, y = p
+    best = -np.inf
+    a, b, c = tri
+    n = np.cross(b - a, c - a)
+    n = n / np.linalg.norm(n)
+    n = -n if n[2] < 0 else n
+    if n[2] > 1e-12:
+        q = np.array([x, y]) - r * n[:2]
+        M = np.column_stack([b[:2] - a[:2], c[:2] - a[:2]])
+        l1, l2 = np.linalg.solve(M, q - a[:2])
+        if l1 >= 0 and l2 >= 0 and l1 + l2 <= 1:
+            return a[2] + l1 * (b[2] - a[2]) + l2 * (c[2] - a[2]) + r * n[2]  # plane at the contact
+    for v in tri:
+        d2 = (x - v[0]) ** 2 + (y - v[1]) ** 2
+        if d2 <= r * r:
+            best = max(best, v[2] + np.sqrt(r * r - d2))
+    for u, v in ((a, b), (b, c), (c, a)):
+        e = v[:2] - u[:2]
+        L = np.linalg.norm(e)
+        if L < 1e-12:
+            continue
+        e = e / L
+        w = np.array([x, y]) - u[:2]
+        d = w[0] * e[1] - w[1] * e[0]
+        if d * d > r * r:
+            continue
+        s = np.sqrt(r * r - d * d)
+        u0 = w @ e
+        m = (v[2] - u[2]) / L
+        ucc = u0 + s * m / np.sqrt(1 + m * m)
+        if 0 <= ucc <= L:
+            best = max(best, u[2] + m * u0 + s * np.sqrt(1 + m * m))
+    return best
+
+
+def test_triangle_drop_tests_only_the_facing_edges():
+    # _tri_drop tests the facet, then only the edges facing the facet contact (the height
+    # is concave over the triangle): the same value as testing every feature
+    from conformill.cutter import _tri_drop
+
+    rng = np.random.default_rng(11)
+    r = 3.0
+    n_fin = 0
+    for _ in range(400):
+        tri = rng.uniform([-4, -4, -2], [4, 4, 2], (3, 3))
+        if rng.random() < 0.2:  # steep ones too
+            tri[:, 2] *= 20
+        T = np.zeros((1, 13))
+        T[0, :9] = tri.reshape(-1)
+        n = np.cross(tri[1] - tri[0], tri[2] - tri[0])
+        n = n / np.linalg.norm(n)
+        T[0, 9:12] = -n if n[2] < 0 else n
+        det = (tri[1, 0] - tri[0, 0]) * (tri[2, 1] - tri[0, 1]) - (tri[1, 1] - tri[0, 1]) * (tri[2, 0] - tri[0, 0])
+        T[0, 12] = 1.0 / det
+        for p in rng.uniform(-8, 8, (20, 2)):
+            got = _tri_drop(p[0], p[1], r, r * r, T, 0)
+            ref = _tri_drop_all_features(p, tri, r)
+            assert np.isfinite(got) == np.isfinite(ref)
+            if np.isfinite(ref):
+                n_fin += 1
+                assert got == pytest.approx(ref, abs=1e-9)
+    assert n_fin > 2000
+
+
+def test_cell_plane_bound_is_the_maximum_over_the_cell():
+    # _cell_bound: the highest ball resting on the plane z = g.q + c at a contact q inside
+    # the cell; against a dense grid of contacts in the cell: never below, and close
+    from conformill.cutter import _cell_bound
+
+    rng = np.random.default_rng(12)
+    r = 4.0
+    u = np.linspace(0.0, 1.0, 401)
+    checked = 0
+    for _ in range(300):
+        x0, y0 = rng.uniform(-3, 3, 2)
+        cell = rng.uniform(0.3, 2.0)
+        gx, gy = rng.normal(scale=1.5, size=2)
+        gc = rng.uniform(-1, 1)
+        k = np.sqrt(1 + gx * gx + gy * gy)
+        CP = np.array([[gx, gy, gc, r * gx / k, r * gy / k, r * k]])
+        px, py = np.array([x0, y0]) + 0.5 * cell + rng.uniform(-5, 5, 2)
+        if rng.random() < 0.3:  # the free maximum inside the cell
+            px, py = np.array([x0, y0]) + cell * rng.random(2) - r * np.array([gx, gy]) / k
+        b = _cell_bound(px, py, r * r, x0, y0, cell, CP, 0)
+        qx, qy = np.meshgrid(x0 + cell * u, y0 + cell * u)
+        d2 = (qx - px) ** 2 + (qy - py) ** 2
+        ok = d2 <= r * r
+        if not ok.any():
+            assert b == -np.inf or b < gx * px + gy * py + gc + r * k + 1e-12
+            continue
+        dense = (gx * qx + gy * qy + gc + np.sqrt(np.where(ok, r * r - d2, 0.0)))[ok].max()
+        assert b >= dense - 1e-9
+        assert b <= dense + 1e-3  # the grid step is cell / 400
+        checked += 1
+    assert checked > 150
+
+
 # ----------------------------------------------------------------------------- CC -> CL
 
 

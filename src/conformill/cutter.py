@@ -19,6 +19,11 @@ point lies on the feature:
   contact ``u0 + s m / sqrt(1 + m^2)`` lies in ``[0, |b - a|_xy]``;
 - vertex ``v`` (a sphere): ``z_c = v_z + sqrt(r^2 - |p - v|_xy^2)`` if ``|p - v|_xy <= r``.
 
+Over a triangle the height of a ball touching its point ``q`` is concave in ``q``, with its
+free maximum at the facet contact; so when the facet contact misses the triangle, only the
+one or two edges whose lines separate it from the triangle are tested, each as a closed
+segment (the cylinder contact clamped to the segment covers its end vertices).
+
 The drop height over the mesh is the maximum over the triangles (triangles are two-sided).
 Because the mesh surface equals the union of its triangles, the ball at the drop height
 touches the mesh and intersects no triangle: it cannot gouge the surface.
@@ -26,8 +31,11 @@ touches the mesh and intersects no triangle: it cannot gouge the surface.
 Speed comes from a uniform XY grid (cells of about ``r/4``) holding, per cell, the
 triangles whose XY bounding box overlaps it, sorted by decreasing top, and the cell's highest
 top ``zmax_C``. A contact at a point ``q`` of cell ``C`` gives at most
-``zmax_C + sqrt(r^2 - dist(p, C)^2)``, so a cell whose bound is below the best height found
-is skipped, and a cell's scan stops at the first triangle whose top gives such a bound.
+``zmax_C + sqrt(r^2 - dist(p, C)^2)``; and, since all of the cell's triangles lie below a
+plane with the slope of their mean normal, at most the height of the ball resting on that
+plane with its contact inside the cell (closed form). A cell whose bound is below the best
+height found is skipped, and a cell's scan stops at the first triangle whose top gives
+such a bound.
 A triangle is fully tested only if three upper bounds of its drop height all reach the best
 height: its XY box and top; the ball resting on its infinite plane (``a x + b y + c + r / n_z``);
 and the tangent plane at its centroid of the concave function ``q_z + sqrt(r^2 - |q - p|^2)``
@@ -77,35 +85,57 @@ _MAX_CELLS = 4_000_000
 
 
 @njit(cache=True, inline="always")
-def _edge_drop(px, py, r2, ax, ay, az, bx, by, bz):
-    """Centre height of a ball at (px, py) resting on segment a-b; -inf if no contact."""
+def _seg_drop(px, py, r2, ax, ay, az, bx, by, bz):
+    """Centre height of a ball at (px, py) resting on the closed segment a-b (edge or end
+    vertex); -inf if out of reach.
+
+    Along the edge (XY position ``u`` in ``[0, L]``, slope ``m``), the ball touching the
+    point at ``u`` sits at ``az + m u + sqrt(s^2 - (u - u0)^2)``, a concave function of
+    ``u``: its maximum is the free one (the cylinder contact) clamped to the part of the
+    edge within reach.
+    """
     ex = bx - ax
     ey = by - ay
     L2 = ex * ex + ey * ey
-    if L2 <= 1e-24:  # vertical edge: its end vertices decide
-        return -np.inf
+    if L2 <= 1e-24:  # vertical edge: its upper end decides
+        dx = px - ax
+        dy = py - ay
+        q = dx * dx + dy * dy
+        if q > r2:
+            return -np.inf
+        return max(az, bz) + math.sqrt(r2 - q)
     L = math.sqrt(L2)
     ux = ex / L
     uy = ey / L
     wx = px - ax
     wy = py - ay
     d = wx * uy - wy * ux
-    d2 = d * d
-    if d2 > r2:
+    s2 = r2 - d * d
+    if s2 < 0.0:
         return -np.inf
-    s = math.sqrt(r2 - d2)
+    s = math.sqrt(s2)
     u0 = wx * ux + wy * uy
-    m = (bz - az) / L
-    k = math.sqrt(1.0 + m * m)
-    ucc = u0 + s * m / k
-    if ucc < 0.0 or ucc > L:
+    lo = max(u0 - s, 0.0)
+    hi = min(u0 + s, L)
+    if lo > hi:
         return -np.inf
-    return az + m * u0 + s * k
+    m = (bz - az) / L
+    u = u0 + s * m / math.sqrt(1.0 + m * m)
+    u = min(max(u, lo), hi)
+    w = u - u0
+    return az + m * u + math.sqrt(max(s2 - w * w, 0.0))
 
 
 @njit(cache=True)
 def _tri_drop(px, py, r, r2, T, t):
-    """Drop height of the ball centre onto triangle ``t`` (facet, edges, vertices)."""
+    """Drop height of the ball centre onto triangle ``t`` (facet, edges, vertices).
+
+    Over the triangle, the height of a ball touching point ``q`` is ``z(q) + sqrt(r^2 -
+    |q - p|^2)``: concave, with its free maximum at the facet contact ``p - r n_xy``. When
+    that contact lies in the triangle it is the answer; otherwise the maximum lies on an
+    edge whose line separates the contact from the triangle (a negative barycentric
+    coordinate of the contact: at most two edges), ends included.
+    """
     x0 = T[t, _X0]
     y0 = T[t, _Y0]
     z0 = T[t, _Z0]
@@ -115,8 +145,6 @@ def _tri_drop(px, py, r, r2, T, t):
     x2 = T[t, _X2]
     y2 = T[t, _Y2]
     z2 = T[t, _Z2]
-    # facet first: when its contact lies in the triangle it is the answer, since the
-    # triangle lies in that plane and the ball cannot rest higher on a subset of it
     nz = T[t, _NZ]
     if nz > _VERTICAL_NZ:
         nx = T[t, _NX]
@@ -127,29 +155,21 @@ def _tri_drop(px, py, r, r2, T, t):
         # barycentric coordinates of the contact in the XY projection
         l1 = ((cx - x0) * (y2 - y0) - (cy - y0) * (x2 - x0)) * idet
         l2 = ((x1 - x0) * (cy - y0) - (y1 - y0) * (cx - x0)) * idet
-        if l1 >= 0.0 and l2 >= 0.0 and l1 + l2 <= 1.0:
+        l0 = 1.0 - l1 - l2
+        if l1 >= 0.0 and l2 >= 0.0 and l0 >= 0.0:
             return z0 - (nx * (cx - x0) + ny * (cy - y0)) / nz + r * nz
-    best = -np.inf
-    # vertices (spheres)
-    dx = px - x0
-    dy = py - y0
-    q = dx * dx + dy * dy
-    if q <= r2:
-        best = max(best, z0 + math.sqrt(r2 - q))
-    dx = px - x1
-    dy = py - y1
-    q = dx * dx + dy * dy
-    if q <= r2:
-        best = max(best, z1 + math.sqrt(r2 - q))
-    dx = px - x2
-    dy = py - y2
-    q = dx * dx + dy * dy
-    if q <= r2:
-        best = max(best, z2 + math.sqrt(r2 - q))
-    # edges (cylinders)
-    best = max(best, _edge_drop(px, py, r2, x0, y0, z0, x1, y1, z1))
-    best = max(best, _edge_drop(px, py, r2, x1, y1, z1, x2, y2, z2))
-    best = max(best, _edge_drop(px, py, r2, x2, y2, z2, x0, y0, z0))
+        best = -np.inf
+        if l0 < 0.0:
+            best = max(best, _seg_drop(px, py, r2, x1, y1, z1, x2, y2, z2))
+        if l1 < 0.0:
+            best = max(best, _seg_drop(px, py, r2, x2, y2, z2, x0, y0, z0))
+        if l2 < 0.0:
+            best = max(best, _seg_drop(px, py, r2, x0, y0, z0, x1, y1, z1))
+        return best
+    # vertical facet: every edge, ends included
+    best = _seg_drop(px, py, r2, x0, y0, z0, x1, y1, z1)
+    best = max(best, _seg_drop(px, py, r2, x1, y1, z1, x2, y2, z2))
+    best = max(best, _seg_drop(px, py, r2, x2, y2, z2, x0, y0, z0))
     return best
 
 
@@ -178,6 +198,59 @@ def _tangent_bound(px, py, r2, T, B, t):
     m = max(m, gx * (T[t, _X1] - cx) + gy * (T[t, _Y1] - cy))
     m = max(m, gx * (T[t, _X2] - cx) + gy * (T[t, _Y2] - cy))
     return B[t, 10] + w + m
+
+
+@njit(cache=True, inline="always")
+def _slab_edge(r2, a, pb, lo, hi, gb, c0):
+    """Largest ``c0 + gb * s + sqrt(r^2 - a^2 - (s - pb)^2)`` over ``s`` in ``[lo, hi]``."""
+    rho2 = r2 - a * a
+    if rho2 <= 0.0:
+        return -np.inf
+    rho = math.sqrt(rho2)
+    lo = max(lo, pb - rho)
+    hi = min(hi, pb + rho)
+    if lo > hi:
+        return -np.inf
+    s = pb + rho * gb / math.sqrt(1.0 + gb * gb)
+    s = min(max(s, lo), hi)
+    w = rho2 - (s - pb) * (s - pb)
+    return c0 + gb * s + math.sqrt(max(w, 0.0))
+
+
+@njit(cache=True, inline="always")
+def _cell_bound(px, py, r2, x0, y0, cell, CP, c):
+    """Upper bound of the drop height from contacts in cell ``c`` (the column ``[x0, x0 +
+    cell] x [y0, y0 + cell]``), whose triangles all lie below the plane ``z = gx x + gy y
+    + gc`` (``CP[c] = gx, gy, gc, r gx / k, r gy / k, r k`` with ``k = sqrt(1 + gx^2 +
+    gy^2)``; ``gc = inf`` when the cell has no such plane).
+
+    ``f(q) = gx qx + gy qy + gc + sqrt(r^2 - |q - p|^2)`` (the ball resting on the plane at
+    ``q``) is concave; its maximum over the rectangle is the free maximum (the ball on the
+    plane, contact at ``p + r g / k``) when that lies inside, otherwise it lies on an edge
+    facing the free maximum (1-D, closed form).
+    """
+    gx = CP[c, 0]
+    gy = CP[c, 1]
+    gc = CP[c, 2]
+    if not gc < np.inf:
+        return np.inf
+    free = gx * px + gy * py + gc + CP[c, 5]
+    qx = px + CP[c, 3]
+    qy = py + CP[c, 4]
+    x1 = x0 + cell
+    y1 = y0 + cell
+    if x0 <= qx <= x1 and y0 <= qy <= y1:
+        return free
+    bound = -np.inf
+    if qx < x0:
+        bound = max(bound, _slab_edge(r2, x0 - px, py, y0, y1, gy, gc + gx * x0))
+    elif qx > x1:
+        bound = max(bound, _slab_edge(r2, x1 - px, py, y0, y1, gy, gc + gx * x1))
+    if qy < y0:
+        bound = max(bound, _slab_edge(r2, y0 - py, px, x0, x1, gx, gc + gy * y0))
+    elif qy > y1:
+        bound = max(bound, _slab_edge(r2, y1 - py, px, x0, x1, gx, gc + gy * y1))
+    return bound
 
 
 @njit(cache=True, inline="always")
@@ -220,7 +293,7 @@ def _scan_cell(px, py, r, r2, T, B, cstart, ctri, EB, c, hc, best, besttri):
 
 
 @njit(cache=True)
-def _drop_point(px, py, r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB,
+def _drop_point(px, py, r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, CP,
                 warm, cid, cbound, floor):
     """Drop height at one point; returns (height, contact triangle or -1).
 
@@ -272,11 +345,14 @@ def _drop_point(px, py, r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czm
                 continue
             if ordered:
                 cid[n] = c
-                cbound[n] = czmax[c] + math.sqrt(r2 - q)
+                cbound[n] = min(czmax[c] + math.sqrt(r2 - q),
+                                _cell_bound(px, py, r2, cx0, cy0, cell, CP, c))
                 n += 1
             else:
                 gap = best - _PRUNE_SLACK - czmax[c]
                 if gap > 0.0 and gap * gap > r2 - q:
+                    continue
+                if _cell_bound(px, py, r2, cx0, cy0, cell, CP, c) + _PRUNE_SLACK < best:
                     continue
                 best, besttri = _scan_cell(px, py, r, r2, T, B, cstart, ctri, EB, c,
                                            math.sqrt(r2 - q), best, besttri)
@@ -294,13 +370,17 @@ def _drop_point(px, py, r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czm
         n -= 1
         cid[k] = cid[n]
         cbound[k] = cbound[n]
+        i = c % ncx
+        j = c // ncx
+        dx = max(gx0 + i * cell - px, px - gx0 - (i + 1) * cell, 0.0)
+        dy = max(gy0 + j * cell - py, py - gy0 - (j + 1) * cell, 0.0)
         best, besttri = _scan_cell(px, py, r, r2, T, B, cstart, ctri, EB, c,
-                                   bmax - czmax[c], best, besttri)
+                                   math.sqrt(max(r2 - dx * dx - dy * dy, 0.0)), best, besttri)
     return best, besttri
 
 
 @njit(cache=True, parallel=True)
-def _drop_many(xy, r, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, maxwin, floor):
+def _drop_many(xy, r, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, CP, maxwin, floor):
     k = xy.shape[0]
     out = np.empty(k, dtype=np.float64)
     hit = np.empty(k, dtype=np.bool_)
@@ -312,7 +392,7 @@ def _drop_many(xy, r, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, m
         warm = -1
         for p in range(ch * _CHUNK, min(k, (ch + 1) * _CHUNK)):
             h, t = _drop_point(xy[p, 0], xy[p, 1], r, r2, T, B, gx0, gy0, cell, ncx, ncy,
-                               cstart, ctri, czmax, EB, warm, cid, cbound, floor[p])
+                               cstart, ctri, czmax, EB, CP, warm, cid, cbound, floor[p])
             out[p] = h
             hit[p] = t >= 0
             if t >= 0:
@@ -348,7 +428,7 @@ def _grow(q0, q1, e0, e1, k, need):
 
 
 @njit(cache=True, inline="always")
-def _chord_drop(ax, ay, az, vx, vy, vz, t, r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB,
+def _chord_drop(ax, ay, az, vx, vy, vz, t, r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, CP,
                 warm, cid, cbound):
     """Drop height over the chord point ``a + t v`` with the chord height as floor.
 
@@ -357,13 +437,13 @@ def _chord_drop(ax, ay, az, vx, vy, vz, t, r, r2, T, B, gx0, gy0, cell, ncx, ncy
     """
     zz = az + t * vz
     h, tri = _drop_point(ax + t * vx, ay + t * vy, r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri,
-                         czmax, EB, warm, cid, cbound, zz)
+                         czmax, EB, CP, warm, cid, cbound, zz)
     return h, h - zz, (tri if tri >= 0 else warm)
 
 
 @njit(cache=True)
 def _check_move(ax, ay, az, vx, vy, vz, r, thresh, floor2, l_safe, max_depth, T, B, gx0, gy0, cell,
-                ncx, ncy, cstart, ctri, czmax, EB, warm, cid, cbound, q0, q1, e0, e1):
+                ncx, ncy, cstart, ctri, czmax, EB, CP, warm, cid, cbound, q0, q1, e0, e1):
     """Bisection of one move (see ``_worst_points``).
 
     Returns ``(t, depth, drop height, warm, q0, q1, e0, e1)``: the deepest violating point
@@ -385,7 +465,7 @@ def _check_move(ax, ay, az, vx, vy, vz, r, thresh, floor2, l_safe, max_depth, T,
         db = 0.0
         if j < n - 1:
             h, db, warm = _chord_drop(ax, ay, az, vx, vy, vz, tb, r, r2, T, B, gx0, gy0, cell, ncx, ncy,
-                                      cstart, ctri, czmax, EB, warm, cid, cbound)
+                                      cstart, ctri, czmax, EB, CP, warm, cid, cbound)
             if db > thresh and db > best_d:
                 best_d = db
                 best_t = tb
@@ -425,7 +505,7 @@ def _check_move(ax, ay, az, vx, vy, vz, r, thresh, floor2, l_safe, max_depth, T,
         for j in range(k):
             tm = 0.5 * (q0[j] + q1[j])
             h, dm, warm = _chord_drop(ax, ay, az, vx, vy, vz, tm, r, r2, T, B, gx0, gy0, cell, ncx, ncy,
-                                      cstart, ctri, czmax, EB, warm, cid, cbound)
+                                      cstart, ctri, czmax, EB, CP, warm, cid, cbound)
             if dm > thresh and dm > best_d:
                 best_d = dm
                 best_t = tm
@@ -445,7 +525,7 @@ def _check_move(ax, ay, az, vx, vy, vz, r, thresh, floor2, l_safe, max_depth, T,
 
 @njit(cache=True, parallel=True)
 def _worst_points(P, seg, r, thresh, floor2, l_safe, max_depth, T, B, gx0, gy0, cell, ncx, ncy,
-                  cstart, ctri, czmax, EB, maxwin):
+                  cstart, ctri, czmax, EB, CP, maxwin):
     """Per move ``P[seg[i]] -> P[seg[i] + 1]``: chord parameter, depth below the drop
     surface and drop height of its deepest violating point, or (0, 0, nan) when the bound
     proves the move safe (the drop height is nan too for a piece undecided at
@@ -476,7 +556,7 @@ def _worst_points(P, seg, r, thresh, floor2, l_safe, max_depth, T, B, gx0, gy0, 
             ax, ay, az = P[s, 0], P[s, 1], P[s, 2]
             t, d, h, warm, q0, q1, e0, e1 = _check_move(
                 ax, ay, az, P[s + 1, 0] - ax, P[s + 1, 1] - ay, P[s + 1, 2] - az, r, thresh, floor2, l_safe,
-                max_depth, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, warm, cid, cbound,
+                max_depth, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, CP, warm, cid, cbound,
                 q0, q1, e0, e1)
             wt[i] = t
             wd[i] = d
@@ -484,8 +564,66 @@ def _worst_points(P, seg, r, thresh, floor2, l_safe, max_depth, T, B, gx0, gy0, 
     return wt, wd, wz
 
 
+@njit(cache=True, parallel=True)
+def _tables(V, F, r):
+    """Per-triangle tables ``T (m, 13)`` (vertices, unit up normal, 1 / det_xy) and
+    ``B (m, 11)`` (XY box, top z, plane-bound coefficients, centroid)."""
+    m = F.shape[0]
+    T = np.empty((m, _NT), dtype=np.float64)
+    B = np.empty((m, 11), dtype=np.float64)
+    for t in prange(m):
+        for v in range(3):
+            for q in range(3):
+                T[t, 3 * v + q] = V[F[t, v], q]
+        x0, y0, z0 = T[t, 0], T[t, 1], T[t, 2]
+        e1x, e1y, e1z = T[t, 3] - x0, T[t, 4] - y0, T[t, 5] - z0
+        e2x, e2y, e2z = T[t, 6] - x0, T[t, 7] - y0, T[t, 8] - z0
+        nx = e1y * e2z - e1z * e2y
+        ny = e1z * e2x - e1x * e2z
+        nz = e1x * e2y - e1y * e2x
+        nn = math.sqrt(nx * nx + ny * ny + nz * nz)
+        if nn > 0.0:
+            nx /= nn
+            ny /= nn
+            nz /= nn
+        else:
+            nx = 0.0
+            ny = 0.0
+            nz = 0.0
+        if nz < 0.0:  # two-sided: the ball comes from above
+            nx = -nx
+            ny = -ny
+            nz = -nz
+        det = e1x * e2y - e1y * e2x
+        idet = 1.0 / det if det != 0.0 else 0.0
+        if nz <= _VERTICAL_NZ or idet == 0.0:
+            nz = 0.0  # facet test off; edges and vertices still apply
+        T[t, _NX] = nx
+        T[t, _NY] = ny
+        T[t, _NZ] = nz
+        T[t, _IDET] = idet
+        B[t, 0] = min(x0, T[t, 3], T[t, 6])
+        B[t, 1] = min(y0, T[t, 4], T[t, 7])
+        B[t, 2] = max(x0, T[t, 3], T[t, 6])
+        B[t, 3] = max(y0, T[t, 4], T[t, 7])
+        B[t, 4] = max(z0, T[t, 5], T[t, 8])
+        # plane bound: the ball on the facet's plane sits at a x + b y + c + r / n_z
+        if nz < _BOUND_NZ:
+            B[t, 5] = 0.0
+            B[t, 6] = 0.0
+            B[t, 7] = np.inf
+        else:
+            B[t, 5] = -nx / nz
+            B[t, 6] = -ny / nz
+            B[t, 7] = z0 + (nx * x0 + ny * y0) / nz + r / nz
+        B[t, 8] = (x0 + T[t, 3] + T[t, 6]) / 3.0
+        B[t, 9] = (y0 + T[t, 4] + T[t, 7]) / 3.0
+        B[t, 10] = (z0 + T[t, 5] + T[t, 8]) / 3.0
+    return T, B
+
+
 @njit(cache=True)
-def _build_grid(B, gx0, gy0, cell, ncx, ncy):
+def _build_grid(T, B, r, gx0, gy0, cell, ncx, ncy):
     """CSR lists of triangles per cell (by XY box overlap) and the cells' highest top."""
     m = B.shape[0]
     counts = np.zeros(ncx * ncy + 1, dtype=np.int64)
@@ -527,7 +665,40 @@ def _build_grid(B, gx0, gy0, cell, ncx, ncy):
     for e in range(ctri.shape[0]):
         for q in range(5):
             EB[e, q] = B[ctri[e], q]
-    return cstart, ctri, czmax, EB
+    # a plane above every triangle of the cell, with the slope of its mean up-normal
+    CP = np.empty((ncx * ncy, 6), dtype=np.float64)
+    for c in range(ncx * ncy):
+        sx = 0.0
+        sy = 0.0
+        sz = 0.0
+        for e in range(cstart[c], cstart[c + 1]):
+            t = ctri[e]
+            sx += T[t, _NX]
+            sy += T[t, _NY]
+            sz += T[t, _NZ]
+        CP[c, 0] = 0.0
+        CP[c, 1] = 0.0
+        CP[c, 2] = np.inf
+        CP[c, 3] = 0.0
+        CP[c, 4] = 0.0
+        CP[c, 5] = 0.0
+        if sz <= _BOUND_NZ * math.sqrt(sx * sx + sy * sy + sz * sz) or cstart[c] == cstart[c + 1]:
+            continue
+        gx = -sx / sz
+        gy = -sy / sz
+        top = -np.inf
+        for e in range(cstart[c], cstart[c + 1]):
+            t = ctri[e]
+            for v in range(3):
+                top = max(top, T[t, 3 * v + 2] - gx * T[t, 3 * v] - gy * T[t, 3 * v + 1])
+        CP[c, 0] = gx
+        CP[c, 1] = gy
+        CP[c, 2] = top
+        k = math.sqrt(1.0 + gx * gx + gy * gy)
+        CP[c, 3] = r * gx / k
+        CP[c, 4] = r * gy / k
+        CP[c, 5] = r * k
+    return cstart, ctri, czmax, EB, CP
 
 
 # --------------------------------------------------------------------------------------
@@ -586,64 +757,34 @@ class BallCutter:
             raise PlanningError(f"cutter: ball radius must be positive and finite, got {radius}")
         self.radius = radius
 
-        P = V[F]  # (m, 3, 3)
-        lo = P.min(axis=1)
-        hi = P.max(axis=1)
-        ext = np.maximum(hi[:, 0] - lo[:, 0], hi[:, 1] - lo[:, 1])
+        T, B = _tables(V, F, radius)
+        ext = np.maximum(B[:, 2] - B[:, 0], B[:, 3] - B[:, 1])
         if cell is None:
             cell = max(radius / 4.0, 0.5 * float(np.median(ext)))
         cell = float(cell)
         if not (math.isfinite(cell) and cell > 0):
             raise PlanningError(f"cutter: grid cell size must be positive and finite, got {cell}")
-        gmin = lo[:, :2].min(axis=0)
-        gmax = hi[:, :2].max(axis=0)
+        gmin = B[:, :2].min(axis=0)
+        gmax = B[:, 2:4].max(axis=0)
         span = np.maximum(gmax - gmin, cell)
         while np.prod(np.ceil(span / cell) + 1) > _MAX_CELLS:
             cell *= 1.5
         ncx, ncy = (int(v) for v in np.ceil(span / cell) + 1)
-
         # spatial reorder so that a cell's triangles sit close together in memory
-        cen = P.mean(axis=1)
-        key = (np.floor((cen[:, 1] - gmin[1]) / cell).astype(np.int64) * ncx
-               + np.floor((cen[:, 0] - gmin[0]) / cell).astype(np.int64))
+        key = (np.floor((B[:, 9] - gmin[1]) / cell).astype(np.int64) * ncx
+               + np.floor((B[:, 8] - gmin[0]) / cell).astype(np.int64))
         order = np.argsort(key, kind="stable")
-        P = P[order]
-        lo = lo[order]
-        hi = hi[order]
-
-        e1 = P[:, 1] - P[:, 0]
-        e2 = P[:, 2] - P[:, 0]
-        n = np.cross(e1, e2)
-        nn = np.linalg.norm(n, axis=1)
-        n = np.divide(n, nn[:, None], out=np.zeros_like(n), where=nn[:, None] > 0)
-        n[n[:, 2] < 0] *= -1.0  # two-sided: the ball comes from above
-        det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
-        with np.errstate(divide="ignore"):
-            idet = np.where(np.abs(det) > 0, 1.0 / np.where(det == 0, 1.0, det), 0.0)
-        vertical = (n[:, 2] <= _VERTICAL_NZ) | (idet == 0)
-        n[vertical, 2] = 0.0  # facet test off; edges and vertices still apply
-        T = np.empty((len(P), _NT), dtype=np.float64)
-        T[:, :9] = P.reshape(-1, 9)
-        T[:, _NX:_NZ + 1] = n
-        T[:, _IDET] = idet
-        # plane bound: the ball on the facet's plane sits at a x + b y + c + r / n_z
-        steep = n[:, 2] < _BOUND_NZ
-        nz_safe = np.where(steep, 1.0, n[:, 2])
-        pa = np.where(steep, 0.0, -n[:, 0] / nz_safe)
-        pb = np.where(steep, 0.0, -n[:, 1] / nz_safe)
-        pc = np.where(steep, np.inf,
-                      P[:, 0, 2] + (n[:, 0] * P[:, 0, 0] + n[:, 1] * P[:, 0, 1]) / nz_safe + radius / nz_safe)
-        B = np.column_stack([lo[:, 0], lo[:, 1], hi[:, 0], hi[:, 1], hi[:, 2], pa, pb, pc,
-                             P[:, :, 0].mean(1), P[:, :, 1].mean(1), P[:, :, 2].mean(1)])
+        T = T[order]
+        B = B[order]
         self._T = np.ascontiguousarray(T)  # (m, 13): vertices, unit up normal, 1 / det_xy
         self._B = np.ascontiguousarray(B)  # (m, 11): xy box, top z, plane-bound coefficients, centroid
         self._order = order
         self._grid = (float(gmin[0]), float(gmin[1]), cell, ncx, ncy)
-        self._cstart, self._ctri, self._czmax, self._EB = _build_grid(self._B, gmin[0], gmin[1], cell, ncx, ncy)
+        self._cstart, self._ctri, self._czmax, self._EB, self._CP = _build_grid(self._T, self._B, radius, gmin[0], gmin[1], cell, ncx, ncy)
         w = int(math.ceil(2 * radius / cell)) + 2
         self._maxwin = w * w
         log.debug("BallCutter: %d triangles, grid %d x %d cells of %.3g mm, %d entries",
-                  len(P), ncx, ncy, cell, len(self._ctri))
+                  len(T), ncx, ncy, cell, len(self._ctri))
 
     # ------------------------------------------------------------------ drop-cutter
     def drop(self, xy) -> np.ndarray:
@@ -678,7 +819,7 @@ class BallCutter:
         """
         gx0, gy0, cell, ncx, ncy = self._grid
         return _drop_many(xy, self.radius, self._T, self._B, gx0, gy0, cell, ncx, ncy,
-                          self._cstart, self._ctri, self._czmax, self._EB, self._maxwin,
+                          self._cstart, self._ctri, self._czmax, self._EB, self._CP, self._maxwin,
                           np.ascontiguousarray(floor, dtype=np.float64))
 
     # ------------------------------------------------------------------ CC -> CL
@@ -830,7 +971,7 @@ class BallCutter:
         l_safe = 2.0 * math.sqrt(thresh * (2.0 * self.radius - thresh))  # r^2 - floor2, without cancellation
         return _worst_points(P, seg.astype(np.int64), self.radius, thresh, floor2, l_safe, max_depth,
                              self._T, self._B, gx0, gy0, cell, ncx, ncy, self._cstart, self._ctri,
-                             self._czmax, self._EB, self._maxwin)
+                             self._czmax, self._EB, self._CP, self._maxwin)
 
     # ------------------------------------------------------------------ tool tip
     def tip(self, centers) -> np.ndarray:

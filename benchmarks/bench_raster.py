@@ -39,7 +39,8 @@ Every program is read back with :func:`conformill.verify.gcode.read_gcode` and s
 to LinuxCNC's ``rs274 -g`` when it is installed. Columns:
 
 * ``wall s`` / ``cpu s``: wall-clock and process CPU time (conformill's numba kernels use
-  all cores; OpenCAMLib's PathDropCutter is single-threaded);
+  all cores; so does OpenCAMLib's PathDropCutter, whose drops run under OpenMP: its CPU
+  time is about twice its wall time on 2 cores);
 * ``OCL x``: OpenCAMLib's wall time divided by this program's;
 * ``CL pts``: points written; ``feed m``: length of the cutting moves (feed moves that do
   not start at the clearance height, i.e. without the plunges), metres;

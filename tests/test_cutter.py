@@ -414,6 +414,25 @@ class TestRefine:
         # inserted points lie on the drop surface
         np.testing.assert_array_equal(Q[:, 2] >= cut.drop(Q[:, :2]) - 1e-12, True)
 
+    def test_undecided_moves_are_cut_into_safe_pieces(self, caplog):
+        # no insertion rounds at all: every move is left undecided and must be cut into
+        # pieces no longer than L_safe with dropped ends, which the bound proves safe
+        m = syn.sphere_cap(R=30.0, radius_xy=25.0, spacing=1.0)
+        cut = BallCutter(m.V, m.F, R_BALL)
+        x = np.linspace(-18, 18, 7)
+        xy = np.column_stack([x, 0.3 * x])
+        P = np.column_stack([xy, cut.drop(xy)])
+        tol = 0.01
+        assert _max_dip(cut, P) > 4 * tol
+        with caplog.at_level("WARNING", logger="conformill.cutter"):
+            Q = cut.refine(P, tol, max_iter=0)
+        assert "still unchecked" in caplog.text
+        assert _is_subsequence(P, Q)
+        l_safe = 2 * np.sqrt(tol / 2 * (2 * R_BALL - tol / 2))
+        assert np.linalg.norm(np.diff(Q, axis=0), axis=1).max() <= l_safe
+        assert np.all(Q[:, 2] >= cut.drop(Q[:, :2]) - 1e-12)
+        assert _max_dip(cut, Q) <= tol
+
     def test_ridge_crease(self):
         # a roof: two planes meeting at the ridge x = 0; the drop surface rounds it with r
         P2, F = syn.polygon_disk(syn.regular_polygon(40, 40.0), 3.0)

@@ -888,7 +888,8 @@ class BallCutter:
         regions and creases. Every move is checked exactly against the bound below, by
         bisection; where a chord point lies more than ``tol / 2`` below ``D``, the worst
         such point, lifted onto ``D``, is inserted, and the two new moves are checked again
-        (at most ``max_iter`` rounds).
+        (at most ``max_iter`` rounds; moves still undecided then are halved until no piece
+        is longer than ``L_safe``, with dropped ends, which the bound proves safe).
 
         The bound. A chord point ``q`` that lies ``d >= 0`` below the drop height at its
         XY is at least ``r - d`` from every point ``c`` of the mesh (the ball at
@@ -961,8 +962,37 @@ class BallCutter:
             P, check = _insert(P, seg_bad, newpts)
         else:
             if check.any():
-                log.warning("cutter.refine: stopped after %d rounds with %d moves unchecked",
-                            max_iter, int(check.sum()))
+                # still undecided after max_iter rounds: halve those moves until no piece
+                # is longer than L_safe (ends dropped), which the bound proves safe
+                seg = np.flatnonzero(check)
+                log.warning("cutter.refine: %d moves still unchecked after %d rounds; halved to L_safe pieces",
+                            seg.size, max_iter)
+                P = self._split_safe(P, seg, thresh)
+        return P
+
+    def _split_safe(self, P, seg, thresh, max_levels: int = 60):
+        """Halve moves ``seg`` until every piece is at most ``L_safe`` long (3D).
+
+        The midpoints are lifted onto the drop surface where the chord lies below it, so
+        every piece has its ends on or above the drop surface; such a piece no longer than
+        ``L_safe`` cannot cut more than ``thresh`` into the part (the bound of
+        :meth:`refine` with ``d0 = d1 = 0``). Moves with (almost) no XY extent are not
+        split, as in :meth:`refine`.
+        """
+        l_safe = 2.0 * math.sqrt(thresh * (2.0 * self.radius - thresh))
+        check = np.zeros(len(P) - 1, dtype=bool)
+        check[seg] = True
+        for _ in range(max_levels):
+            d = np.diff(P, axis=0)
+            long_ = check & (np.linalg.norm(d, axis=1) > l_safe) & (np.hypot(d[:, 0], d[:, 1]) > 1e-9)
+            if not long_.any():
+                return P
+            s = np.flatnonzero(long_)
+            mid = 0.5 * (P[s] + P[s + 1])
+            mid[:, 2] = np.maximum(self.drop(mid[:, :2]), mid[:, 2])
+            P, check = _insert(P, s, mid)
+        log.warning("cutter.refine: %d moves still longer than L_safe after %d halvings",
+                    int(long_.sum()), max_levels)
         return P
 
     def _worst_points(self, P, seg, thresh, floor2, max_depth):

@@ -100,10 +100,12 @@ def _walk_distance(P, Q, closed, window):
     return out
 
 
-def point_polyline_distance(P: np.ndarray, Q: np.ndarray, closed: bool = False) -> np.ndarray:
+def point_polyline_distance(P: np.ndarray, Q: np.ndarray, closed: bool = False, tree=None) -> np.ndarray:
     """Distance from each point of ``P (k, 3)`` to the polyline ``Q (q, 3)`` (kd-tree).
 
-    Reference implementation; the planner uses :func:`curve_distance`.
+    Reference implementation; the planner uses :func:`curve_distance` and this only where
+    that walk says a sample is too far. ``tree`` may pass a ``cKDTree`` of ``Q`` built
+    before.
 
     The nearest vertex of ``Q`` is found with a k-d tree; the two segments around it are
     then measured exactly (exact whenever the nearest segment touches the nearest vertex,
@@ -112,7 +114,7 @@ def point_polyline_distance(P: np.ndarray, Q: np.ndarray, closed: bool = False) 
     Q = np.asarray(Q)
     if len(Q) == 1:
         return np.linalg.norm(P - Q[0], axis=1)
-    _, j = cKDTree(Q).query(P)
+    _, j = (cKDTree(Q) if tree is None else tree).query(P)
     best = np.linalg.norm(P - Q[j], axis=1)
     q = len(Q)
     for lo in (j - 1, j):
@@ -147,13 +149,17 @@ def curve_distance(P: np.ndarray, Q: np.ndarray, closed: bool = False, window: i
     return _walk_distance(P, Q, bool(closed), int(window))
 
 
-def _exact_where_over(d: np.ndarray, limit: np.ndarray, P: np.ndarray, Q: np.ndarray, closed: bool) -> np.ndarray:
-    """``d`` with the entries above ``limit`` recomputed exactly (k-d tree)."""
+def _exact_where_over(d: np.ndarray, limit: np.ndarray, P: np.ndarray, b, closed: bool) -> np.ndarray:
+    """``d`` with the entries above ``limit`` recomputed exactly against curve ``b``
+    (k-d tree of its samples, built once per curve: a curve is measured against its
+    neighbours on both sides and again after every shrink of the step)."""
     over = np.flatnonzero(d > limit * (1.0 + 1e-9))
     if over.size == 0:
         return d
+    if b.tree is None:
+        b.tree = cKDTree(b.sample.xyz)
     d = d.copy()
-    d[over] = point_polyline_distance(P[over], Q, closed)
+    d[over] = point_polyline_distance(P[over], b.sample.xyz, closed, tree=b.tree)
     return d
 
 
@@ -171,8 +177,8 @@ def pair_distances(a, b, closed: bool = False):
     d_bwd = curve_distance(Pb, Pa, closed)
     ratio = max(np.max(d_fwd / a.ls), np.max(d_bwd / b.ls))
     if ratio > 1.0 + 1e-9:
-        d_fwd = _exact_where_over(d_fwd, a.ls, Pa, Pb, closed)
-        d_bwd = _exact_where_over(d_bwd, b.ls, Pb, Pa, closed)
+        d_fwd = _exact_where_over(d_fwd, a.ls, Pa, b, closed)
+        d_bwd = _exact_where_over(d_bwd, b.ls, Pb, a, closed)
         ratio = max(np.max(d_fwd / a.ls), np.max(d_bwd / b.ls))
     return d_fwd, ratio
 
@@ -180,7 +186,7 @@ def pair_distances(a, b, closed: bool = False):
 class Curve:
     """One evaluated domain curve: dense samples and the surface there."""
 
-    __slots__ = ("s", "tau", "sample", "t", "ls", "reach", "rate")
+    __slots__ = ("s", "tau", "sample", "t", "ls", "reach", "rate", "tree")
 
     def __init__(self, s, tau, sample, t, ls, reach, rate=None):
         self.s = s
@@ -192,6 +198,7 @@ class Curve:
         # how fast the curve moves across itself per unit of ``s``, in units of the base
         # domain direction (1 for the paper's iso-lines; see conformill.patterns.warp)
         self.rate = np.ones(len(tau)) if rate is None else rate
+        self.tree = None  # k-d tree of sample.xyz, built on first need (pair_distances)
 
 
 class Family:

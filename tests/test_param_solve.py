@@ -95,12 +95,28 @@ def test_pardiso_rejects_an_empty_row():
         S.solve_linear(A, np.ones((2, 2)), "pardiso")
 
 
-def test_pardiso_threads_is_positive_or_left_to_mkl(monkeypatch):
+def test_pardiso_threads_do_not_follow_the_load(monkeypatch):
+    # a fixed count (the reproducible mode needs it): the CPUs of this process, or the env
     monkeypatch.delenv("MKL_NUM_THREADS", raising=False)
     monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
-    t = S.pardiso_threads()
-    assert t is None or t >= 1
-    monkeypatch.setattr(S, "_busy_cpus", lambda: 99)
-    assert S.pardiso_threads() in (None, 1)
-    monkeypatch.setenv("MKL_NUM_THREADS", "2")
-    assert S.pardiso_threads() is None
+    import os
+
+    assert S.pardiso_threads() == len(os.sched_getaffinity(0))
+    monkeypatch.setenv("OMP_NUM_THREADS", "3")
+    assert S.pardiso_threads() == 3
+    monkeypatch.setenv("MKL_NUM_THREADS", "1")
+    assert S.pardiso_threads() == 1
+
+
+@pytest.mark.skipif(not S.have_pardiso(), reason="MKL Pardiso not available")
+def test_pardiso_runs_in_the_reproducible_mode():
+    # sequential nested dissection and iparm[34] = threads: MKL's conditional numerical
+    # reproducibility, so that the programs do not depend on the machine's load
+    A = S.CSR(np.array([0, 2, 4]), np.array([0, 1, 0, 1]), np.array([4.0, -1.0, -1.0, 4.0]), (2, 2))
+    for iparm in (S.PARDISO_FAST, {}):
+        ps = S._Pardiso(A, iparm)
+        assert ps.iparm[1] == 2 and ps.iparm[33] == S.pardiso_threads() >= 1
+        ps.factorize()
+        x = ps.solve(np.array([3.0, 3.0]))
+        ps.free()
+        np.testing.assert_allclose(x.ravel(), [1.0, 1.0], rtol=1e-12)

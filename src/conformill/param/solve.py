@@ -34,11 +34,11 @@ log = logging.getLogger(__name__)
 #: a solve whose relative residual exceeds this raises ParameterizationError
 MAX_RESIDUAL = 1e-8
 SOLVERS = ("pardiso", "superlu", "gmres_ilu")
-#: MKL Pardiso iparm (1-based) tried first: user settings on, parallel nested dissection, no
-#: iterative refinement, pivot perturbation 1e-13, no scaling or weighted matching, two-level
-#: parallel factorization. On the 620k-face mesh: factor 1.0 s + solve 0.05 s against
-#: 1.05 s + 0.2 s with the defaults (benchmarks/bench_solvers.py).
-PARDISO_FAST = {1: 1, 2: 3, 8: 0, 10: 13, 11: 0, 13: 0, 24: 1}
+#: MKL Pardiso iparm (1-based) tried first: user settings on, nested dissection (METIS; the
+#: parallel one, 2: 3, would rule out reproducible results), no iterative refinement, pivot
+#: perturbation 1e-13, no scaling or weighted matching, two-level parallel factorization.
+#: Every solve also sets iparm[34] (reproducibility with a fixed thread count).
+PARDISO_FAST = {1: 1, 2: 2, 8: 0, 10: 13, 11: 0, 13: 0, 24: 1}
 
 
 def _relative_residual(A, X, rhs) -> float:
@@ -107,31 +107,24 @@ def _mkl_pardiso():
     return _MKL[0]
 
 
-def _busy_cpus() -> int:
-    """Runnable tasks on the machine other than this one, right now (Linux ``/proc/loadavg``)."""
-    try:
-        with open("/proc/loadavg") as fh:
-            running = int(fh.read().split()[3].split("/")[0])
-    except (OSError, ValueError, IndexError):
-        return 0
-    return max(running - 1, 0)
+def pardiso_threads() -> int:
+    """Threads for Pardiso: ``MKL_NUM_THREADS`` (or ``OMP_NUM_THREADS``) when set, else the
+    CPUs this process may use.
 
-
-def pardiso_threads() -> int | None:
-    """Threads for Pardiso: the CPUs this process may use minus those busy right now.
-
-    MKL's OpenMP threads meet at barriers many times per factorization; when one of them has
-    to share its core with another process, all of them wait, and two threads on one free
-    core run about twice as slow as one thread. ``None`` (MKL decides) when
-    ``MKL_NUM_THREADS`` or ``OMP_NUM_THREADS`` is set, or off Linux.
+    The count is fixed for a machine, not taken from its load, and Pardiso runs in MKL's
+    conditional numerical reproducibility mode with it (``iparm[34]``): the solution, and
+    so the whole program, is then bit-identical from run to run. (Earlier versions used the
+    CPUs not busy at the moment and the parallel nested dissection; both made the last
+    bits of ``uv``, and so the programs, depend on the machine's load.)
     """
-    if os.environ.get("MKL_NUM_THREADS") or os.environ.get("OMP_NUM_THREADS"):
-        return None
+    for var in ("MKL_NUM_THREADS", "OMP_NUM_THREADS"):
+        v = os.environ.get(var, "").strip()
+        if v.isdigit() and int(v) > 0:
+            return int(v)
     try:
-        ncpu = len(os.sched_getaffinity(0))
+        return max(1, len(os.sched_getaffinity(0)))
     except (AttributeError, OSError):
-        return None
-    return max(1, ncpu - _busy_cpus())
+        return max(1, os.cpu_count() or 1)
 
 
 class _Pardiso:
@@ -164,6 +157,12 @@ class _Pardiso:
                  self.iparm.ctypes.data_as(ctypes.c_void_p))
         self.iparm[0] = 1  # iparm given
         self.iparm[34] = 1  # zero-based indexing
+        self.threads = pardiso_threads()
+        # conditional numerical reproducibility with this many threads: the same bits
+        # whatever the machine's load (requires the sequential nested dissection)
+        if self.iparm[1] == 3:
+            self.iparm[1] = 2
+        self.iparm[33] = self.threads
         self.active = False
         self.solved = False
 
@@ -182,13 +181,11 @@ class _Pardiso:
 
     def factorize(self) -> None:
         self.active = True
-        nt = pardiso_threads()
-        old = self._threads(nt) if nt else None
+        old = self._threads(self.threads)
         try:
             self._call(12)
         finally:
-            if nt:
-                self._threads(old)
+            self._threads(old)
 
     def solve(self, rhs: np.ndarray) -> np.ndarray:
         if self.solved or not self.active:

@@ -30,6 +30,17 @@ class SurfaceSample:
     I: np.ndarray
     II: np.ndarray
 
+    def merged(self, other: "SurfaceSample", new: np.ndarray) -> "SurfaceSample":
+        """This sample and ``other`` interleaved: ``other``'s points at the True entries of
+        the mask ``new``, this one's at the others, each in its own order."""
+        def mix(a, b):
+            out = np.empty((len(new),) + a.shape[1:], dtype=a.dtype)
+            out[~new] = a
+            out[new] = b
+            return out
+        return SurfaceSample(*(mix(getattr(self, f), getattr(other, f))
+                               for f in ("uv", "face", "bary", "xyz", "n", "I", "II")))
+
     def length(self, d: np.ndarray) -> np.ndarray:
         """3D length per unit domain length in domain direction ``d (k, 2)``: sqrt(d^T I d)."""
         E, F, G = self.I.T

@@ -256,9 +256,17 @@ class Planner:
         curve of the same family, which usually need no refinement).
         """
         tau = family.initial_tau(s) if tau is None else tau
-        for _ in range(max_rounds):
+        S, new = None, None
+        for rnd in range(max_rounds + 1):
             P, t = family.along(s, tau)
-            S = self.surface.sample(P)
+            if S is None:
+                S = self.surface.sample(P)
+            else:
+                # a domain point depends on its own along-parameter only: the surface is
+                # evaluated at the new ones and the old samples are kept
+                S = S.merged(self.surface.sample(P[new]), new)
+            if rnd == max_rounds:
+                break
             seg = np.linalg.norm(np.diff(S.xyz, axis=0), axis=1)
             long_ = np.flatnonzero(seg > self.seg_len)
             if long_.size == 0:
@@ -268,10 +276,10 @@ class Planner:
             m = np.repeat(k, k - 1)
             j = np.arange(owner.size) - np.repeat(np.cumsum(k - 1) - (k - 1), k - 1) + 1
             extra = tau[owner] + (tau[owner + 1] - tau[owner]) * (j / m)
-            tau = np.sort(np.concatenate([tau, extra]))
-        else:
-            P, t = family.along(s, tau)
-            S = self.surface.sample(P)
+            both = np.concatenate([tau, extra])
+            order = np.argsort(both, kind="stable")
+            new = order >= len(tau)
+            tau = both[order]
         ls, reach = self.allowed(S, t)
         return Curve(s, tau, S, t, ls, reach, family.rate(s, tau, P, t))
 

@@ -109,13 +109,37 @@ def select_forward(X: np.ndarray, kappa: np.ndarray, e: float, max_step: float, 
     idx[-1] = k - 1
     idx = np.unique(np.clip(idx, 0, k - 1))
     # make sure no chord skips more length than allowed where equidistribution was coarse
+    return _add_farthest(np.ascontiguousarray(X, dtype=np.float64), tol, idx.astype(np.int64), max_rounds)
+
+
+@njit(cache=True)
+def _add_farthest(X, tol, idx, max_rounds):
+    """Rounds of: every chord whose farthest skipped sample deviates by more than the
+    tightest tolerance over the samples it spans (ends included) gets that sample."""
     for _ in range(max_rounds):
-        dev, arg = chord_deviation(X, idx)
-        # a chord's tolerance is the tightest over the samples it spans, ends included
-        lim = np.minimum.reduceat(tol, idx[:-1])
-        lim = np.minimum(lim, tol[idx[1:]])
-        bad = dev > lim
-        if not bad.any():
+        dev, arg = _chord_deviation(X, idx)
+        m = idx.shape[0]
+        bad = np.zeros(m - 1, dtype=np.bool_)
+        nbad = 0
+        for j in range(m - 1):
+            lim = tol[idx[j]]
+            for i in range(idx[j] + 1, idx[j + 1] + 1):
+                lim = min(lim, tol[i])
+            if dev[j] > lim:
+                bad[j] = True
+                nbad += 1
+        if nbad == 0:
             break
-        idx = np.unique(np.concatenate([idx, arg[bad]]))
+        # merge: the farthest sample of a bad chord lies inside it, so the order holds
+        out = np.empty(m + nbad, dtype=np.int64)
+        n = 0
+        for j in range(m - 1):
+            out[n] = idx[j]
+            n += 1
+            if bad[j] and arg[j] != idx[j] and arg[j] != idx[j + 1]:
+                out[n] = arg[j]
+                n += 1
+        out[n] = idx[m - 1]
+        n += 1
+        idx = out[:n].copy()
     return idx

@@ -87,7 +87,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _common  # noqa: E402
 
 PATTERNS = ("zigzag", "contour", "spiral")
-FULL_MESHES = ("igea", "choi", "camelhead", "beetle", "lion", "sample:face", "sample:patch")
+FULL_MESHES = ("igea", "choi", "camelhead", "beetle", "lion", "sample:face", "sample:patch",
+               "nefertiti", "spacetime", "fandisk", "sample:lion")
 QUICK_MESHES = ("beetle", "sample:patch")
 
 

@@ -28,8 +28,45 @@ apart two curves can open where a ray needs almost no steps.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
+from numba import njit
 from scipy.ndimage import gaussian_filter1d
+
+
+@njit(cache=True)
+def _bilinear(G, s, tau, closed):
+    """``(x, dx/ds)`` of the bilinear interpolation of ``G`` (levels x columns) at levels
+    ``s`` (clipped to [0, 1]) and along-parameters ``tau`` (periodic when ``closed``)."""
+    m, n = G.shape
+    k = tau.shape[0]
+    x = np.empty(k)
+    dx = np.empty(k)
+    for p in range(k):
+        fs = min(max(s[p], 0.0), 1.0) * (m - 1)
+        j0 = min(int(math.floor(fs)), m - 2)
+        ws = fs - j0
+        t = tau[p]
+        if closed:
+            f = (t - math.floor(t)) * n  # tau mod 1, as np.mod for a positive period
+            i0 = int(math.floor(f)) % n
+            i1 = (i0 + 1) % n
+            wt = f - math.floor(f)
+        else:
+            f = min(max(t, 0.0), 1.0) * (n - 1)
+            i0 = min(int(math.floor(f)), n - 2)
+            i1 = i0 + 1
+            wt = f - i0
+        g00 = G[j0, i0]
+        g01 = G[j0, i1]
+        g10 = G[j0 + 1, i0]
+        g11 = G[j0 + 1, i1]
+        lo = g00 + wt * (g01 - g00)
+        hi = g10 + wt * (g11 - g10)
+        x[p] = lo + ws * (hi - lo)
+        dx[p] = (hi - lo) * (m - 1)
+    return x, dx
 
 
 class Warp:
@@ -57,31 +94,12 @@ class Warp:
         self.end = end
         self.closed = bool(closed)
 
-    def _cols(self, tau):
-        n = len(self.tau)
-        if self.closed:
-            f = np.mod(tau, 1.0) * n
-            i0 = np.floor(f).astype(np.int64) % n
-            return i0, (i0 + 1) % n, f - np.floor(f)
-        f = np.clip(tau, 0.0, 1.0) * (n - 1)
-        i0 = np.minimum(np.floor(f).astype(np.int64), n - 2)
-        return i0, i0 + 1, f - i0
-
     def fraction(self, s, tau):
         """Fraction ``x`` and its derivative ``dx/ds`` at levels ``s`` and ``tau`` (bilinear)."""
-        tau = np.asarray(tau, dtype=np.float64)
-        s = np.clip(np.broadcast_to(np.asarray(s, dtype=np.float64), tau.shape), 0.0, 1.0)
-        m = self.G.shape[0]
-        fs = s * (m - 1)
-        j0 = np.minimum(np.floor(fs).astype(np.int64), m - 2)
-        ws = fs - j0
-        i0, i1, wt = self._cols(tau)
-        g00, g01 = self.G[j0, i0], self.G[j0, i1]
-        g10, g11 = self.G[j0 + 1, i0], self.G[j0 + 1, i1]
-        lo = g00 + wt * (g01 - g00)
-        hi = g10 + wt * (g11 - g10)
-        x = lo + ws * (hi - lo)
-        return x, (hi - lo) * (m - 1)
+        tau = np.ascontiguousarray(tau, dtype=np.float64)
+        s = np.ascontiguousarray(np.broadcast_to(np.asarray(s, dtype=np.float64), tau.shape))
+        x, dx = _bilinear(np.ascontiguousarray(self.G), s.reshape(-1), tau.reshape(-1), self.closed)
+        return x.reshape(tau.shape), dx.reshape(tau.shape)
 
     def offset(self, s, tau, end=None):
         """Base offsets ``g`` and ``dg/ds`` at levels ``s`` (scalar or per ``tau``).

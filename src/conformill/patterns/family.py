@@ -17,7 +17,7 @@ from __future__ import annotations
 import logging
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 from scipy.spatial import cKDTree
 
 from conformill.errors import PlanningError
@@ -100,6 +100,23 @@ def _walk_distance(P, Q, closed, window):
     return out
 
 
+@njit(cache=True, parallel=True)
+def _walk_both(Pa, Pb, closed, window):
+    """:func:`_walk_distance` both ways between two curves, one way per thread."""
+    fwd = np.empty(Pa.shape[0])
+    bwd = np.empty(Pb.shape[0])
+    for w in prange(2):
+        if w == 0:
+            d = _walk_distance(Pa, Pb, closed, window)
+            for i in range(d.shape[0]):
+                fwd[i] = d[i]
+        else:
+            d = _walk_distance(Pb, Pa, closed, window)
+            for i in range(d.shape[0]):
+                bwd[i] = d[i]
+    return fwd, bwd
+
+
 def point_polyline_distance(P: np.ndarray, Q: np.ndarray, closed: bool = False, tree=None) -> np.ndarray:
     """Distance from each point of ``P (k, 3)`` to the polyline ``Q (q, 3)`` (kd-tree).
 
@@ -173,8 +190,12 @@ def pair_distances(a, b, closed: bool = False):
     the distance is recomputed exactly before anything is decided.
     """
     Pa, Pb = a.sample.xyz, b.sample.xyz
-    d_fwd = curve_distance(Pa, Pb, closed)
-    d_bwd = curve_distance(Pb, Pa, closed)
+    if len(Pa) > 1 and len(Pb) > 1:  # the two walks at once (the pattern stage is serial otherwise)
+        d_fwd, d_bwd = _walk_both(np.ascontiguousarray(Pa, dtype=np.float64),
+                                  np.ascontiguousarray(Pb, dtype=np.float64), bool(closed), 3)
+    else:
+        d_fwd = curve_distance(Pa, Pb, closed)
+        d_bwd = curve_distance(Pb, Pa, closed)
     ratio = max(np.max(d_fwd / a.ls), np.max(d_bwd / b.ls))
     if ratio > 1.0 + 1e-9:
         d_fwd = _exact_where_over(d_fwd, a.ls, Pa, b, closed)

@@ -34,7 +34,7 @@ import logging
 import warnings
 
 import numpy as np
-from numba import njit, prange
+from numba import njit, prange, vectorize
 
 from conformill.errors import ConformillError
 from conformill.types import SurfaceFrame
@@ -554,10 +554,19 @@ def normal_curvature(E, F, G, L, M, N, du, dv) -> np.ndarray:
         NaN where the direction is zero or the metric is degenerate.
     """
     E, F, G, L, M, N, du, dv = (np.asarray(a, dtype=np.float64) for a in (E, F, G, L, M, N, du, dv))
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):  # NaN where the fit failed
+        k = _normal_curvature(E, F, G, L, M, N, du, dv)
+    return np.asarray(k, dtype=np.float64)
+
+
+@vectorize(["float64(float64, float64, float64, float64, float64, float64, float64, float64)"], cache=True)
+def _normal_curvature(E, F, G, L, M, N, du, dv):
+    """:func:`normal_curvature` at one point (a compiled ufunc)."""
     num = L * du * du + 2.0 * M * du * dv + N * dv * dv
     den = E * du * du + 2.0 * F * du * dv + G * dv * dv
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(den > 0, num / np.where(den > 0, den, 1.0), np.nan)
+    if den > 0:
+        return num / den
+    return np.nan
 
 
 def frame_normal_curvature(frame: SurfaceFrame, du, dv) -> np.ndarray:

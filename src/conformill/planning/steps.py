@@ -59,6 +59,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba import vectorize
 
 from conformill.errors import PlanningError
 from conformill.types import PathParams
@@ -129,19 +130,30 @@ def side_interval(h, r, kappa):
     k = np.asarray(kappa, dtype=np.float64)
     r = float(r)
     h, k = np.broadcast_arrays(h, k)
-    flat = 2.0 * np.sqrt(h * (2.0 * r - h))
     reachable = np.isfinite(k) & (r * k < 1.0)
-    ks = np.where(reachable, k, 0.0)
-    ak = np.abs(ks)
-    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        Q = h * (2.0 * r - h) / (2.0 * (1.0 - h * ks) * (1.0 - r * ks))
-        q = np.minimum(Q * ks * ks, 1.0)  # 1 - cos(alpha), alpha <= 90 degrees
-        w = np.where(q >= 1.0, 2.0 / np.where(ak > 0, ak, 1.0), 2.0 * np.sqrt(Q * (2.0 - q)))
-        # sharp convex: even the widest chord at which the balls still meet leaves < h
-        sharp = (ks < 0) & (ak * h * h > 2.0 * (r - h))
-        w = np.where(sharp, 2.0 * r / (1.0 + r * ak), w)
-    w = np.where(reachable, w, flat)
-    return w, reachable
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):  # inf / NaN curvatures
+        w = _side_interval_w(h, k, r)
+    return np.asarray(w, dtype=np.float64), reachable
+
+
+@vectorize(["float64(float64, float64, float64)"], cache=True)
+def _side_interval_w(h, k, r):
+    """:func:`side_interval`'s chord at one point (a compiled ufunc: the planner calls it on
+    every dense sample of every curve it evaluates)."""
+    flat = 2.0 * math.sqrt(h * (2.0 * r - h))
+    if not (math.isfinite(k) and r * k < 1.0):
+        return flat
+    ak = abs(k)
+    Q = h * (2.0 * r - h) / (2.0 * (1.0 - h * k) * (1.0 - r * k))
+    q = Q * k * k
+    if q >= 1.0:  # 1 - cos(alpha) capped at 1: alpha <= 90 degrees
+        w = 2.0 / (ak if ak > 0 else 1.0)
+    else:
+        w = 2.0 * math.sqrt(Q * (2.0 - q))
+    # sharp convex: even the widest chord at which the balls still meet leaves < h
+    if k < 0 and ak * h * h > 2.0 * (r - h):
+        w = 2.0 * r / (1.0 + r * ak)
+    return w
 
 
 def scallop_height(w, r, kappa):

@@ -85,14 +85,32 @@ _MAX_CELLS = 4_000_000
 
 
 @njit(cache=True, inline="always")
+def _arc_max(rho2, s0, lo, hi, m, c0):
+    """Largest ``c0 + m s + sqrt(rho2 - (s - s0)^2)`` over ``s`` in ``[lo, hi]`` with
+    ``|s - s0| <= sqrt(rho2)``; ``-inf`` when that set is empty.
+
+    This is the centre height of a ball resting on a line of slope ``m`` (height ``c0 + m s``)
+    that passes ``sqrt(r^2 - rho2)`` from the ball's axis: concave in ``s``, so its maximum
+    is the free one, ``s0 + rho m / sqrt(1 + m^2)``, clamped to the interval.
+    """
+    if rho2 < 0.0:
+        return -np.inf
+    rho = math.sqrt(rho2)
+    lo = max(lo, s0 - rho)
+    hi = min(hi, s0 + rho)
+    if lo > hi:
+        return -np.inf
+    s = s0 + rho * m / math.sqrt(1.0 + m * m)
+    s = min(max(s, lo), hi)
+    w = s - s0
+    return c0 + m * s + math.sqrt(max(rho2 - w * w, 0.0))
+
+
+@njit(cache=True, inline="always")
 def _seg_drop(px, py, r2, ax, ay, az, bx, by, bz):
     """Centre height of a ball at (px, py) resting on the closed segment a-b (edge or end
-    vertex); -inf if out of reach.
-
-    Along the edge (XY position ``u`` in ``[0, L]``, slope ``m``), the ball touching the
-    point at ``u`` sits at ``az + m u + sqrt(s^2 - (u - u0)^2)``, a concave function of
-    ``u``: its maximum is the free one (the cylinder contact) clamped to the part of the
-    edge within reach.
+    vertex); -inf if out of reach: :func:`_arc_max` along the edge (XY position in
+    ``[0, L]``, slope ``(bz - az) / L``), the cylinder contact clamped to the segment.
     """
     ex = bx - ax
     ey = by - ay
@@ -110,20 +128,7 @@ def _seg_drop(px, py, r2, ax, ay, az, bx, by, bz):
     wx = px - ax
     wy = py - ay
     d = wx * uy - wy * ux
-    s2 = r2 - d * d
-    if s2 < 0.0:
-        return -np.inf
-    s = math.sqrt(s2)
-    u0 = wx * ux + wy * uy
-    lo = max(u0 - s, 0.0)
-    hi = min(u0 + s, L)
-    if lo > hi:
-        return -np.inf
-    m = (bz - az) / L
-    u = u0 + s * m / math.sqrt(1.0 + m * m)
-    u = min(max(u, lo), hi)
-    w = u - u0
-    return az + m * u + math.sqrt(max(s2 - w * w, 0.0))
+    return _arc_max(r2 - d * d, wx * ux + wy * uy, 0.0, L, (bz - az) / L, az)
 
 
 @njit(cache=True)
@@ -201,23 +206,6 @@ def _tangent_bound(px, py, r2, T, B, t):
 
 
 @njit(cache=True, inline="always")
-def _slab_edge(r2, a, pb, lo, hi, gb, c0):
-    """Largest ``c0 + gb * s + sqrt(r^2 - a^2 - (s - pb)^2)`` over ``s`` in ``[lo, hi]``."""
-    rho2 = r2 - a * a
-    if rho2 <= 0.0:
-        return -np.inf
-    rho = math.sqrt(rho2)
-    lo = max(lo, pb - rho)
-    hi = min(hi, pb + rho)
-    if lo > hi:
-        return -np.inf
-    s = pb + rho * gb / math.sqrt(1.0 + gb * gb)
-    s = min(max(s, lo), hi)
-    w = rho2 - (s - pb) * (s - pb)
-    return c0 + gb * s + math.sqrt(max(w, 0.0))
-
-
-@njit(cache=True, inline="always")
 def _cell_bound(px, py, r2, x0, y0, cell, CP, c):
     """Upper bound of the drop height from contacts in cell ``c`` (the column ``[x0, x0 +
     cell] x [y0, y0 + cell]``), whose triangles all lie below the plane ``z = gx x + gy y
@@ -227,7 +215,7 @@ def _cell_bound(px, py, r2, x0, y0, cell, CP, c):
     ``f(q) = gx qx + gy qy + gc + sqrt(r^2 - |q - p|^2)`` (the ball resting on the plane at
     ``q``) is concave; its maximum over the rectangle is the free maximum (the ball on the
     plane, contact at ``p + r g / k``) when that lies inside, otherwise it lies on an edge
-    facing the free maximum (1-D, closed form).
+    facing the free maximum (:func:`_arc_max` along that edge).
     """
     gx = CP[c, 0]
     gy = CP[c, 1]
@@ -242,14 +230,15 @@ def _cell_bound(px, py, r2, x0, y0, cell, CP, c):
     if x0 <= qx <= x1 and y0 <= qy <= y1:
         return free
     bound = -np.inf
-    if qx < x0:
-        bound = max(bound, _slab_edge(r2, x0 - px, py, y0, y1, gy, gc + gx * x0))
-    elif qx > x1:
-        bound = max(bound, _slab_edge(r2, x1 - px, py, y0, y1, gy, gc + gx * x1))
-    if qy < y0:
-        bound = max(bound, _slab_edge(r2, y0 - py, px, x0, x1, gx, gc + gy * y0))
-    elif qy > y1:
-        bound = max(bound, _slab_edge(r2, y1 - py, px, x0, x1, gx, gc + gy * y1))
+    # an edge x = const at XY distance a from p: the line on it, in y, sits at gc + gx x + gy y
+    if qx < x0 or qx > x1:
+        xe = x0 if qx < x0 else x1
+        a = xe - px
+        bound = max(bound, _arc_max(r2 - a * a, py, y0, y1, gy, gc + gx * xe))
+    if qy < y0 or qy > y1:
+        ye = y0 if qy < y0 else y1
+        a = ye - py
+        bound = max(bound, _arc_max(r2 - a * a, px, x0, x1, gx, gc + gy * ye))
     return bound
 
 
@@ -666,7 +655,7 @@ def _build_grid(T, B, r, gx0, gy0, cell, ncx, ncy):
         for q in range(5):
             EB[e, q] = B[ctri[e], q]
     # a plane above every triangle of the cell, with the slope of its mean up-normal
-    CP = np.empty((ncx * ncy, 6), dtype=np.float64)
+    CP = np.zeros((ncx * ncy, 6), dtype=np.float64)
     for c in range(ncx * ncy):
         sx = 0.0
         sy = 0.0
@@ -676,13 +665,8 @@ def _build_grid(T, B, r, gx0, gy0, cell, ncx, ncy):
             sx += T[t, _NX]
             sy += T[t, _NY]
             sz += T[t, _NZ]
-        CP[c, 0] = 0.0
-        CP[c, 1] = 0.0
-        CP[c, 2] = np.inf
-        CP[c, 3] = 0.0
-        CP[c, 4] = 0.0
-        CP[c, 5] = 0.0
         if sz <= _BOUND_NZ * math.sqrt(sx * sx + sy * sy + sz * sz) or cstart[c] == cstart[c + 1]:
+            CP[c, 2] = np.inf  # no plane: the bound is off
             continue
         gx = -sx / sz
         gy = -sy / sz
@@ -970,6 +954,11 @@ class BallCutter:
                 P = self._split_safe(P, seg, thresh)
         return P
 
+    def _l_safe(self, thresh):
+        """``L_safe = 2 sqrt(r^2 - (r - thresh)^2)``, without cancellation: the longest move
+        between two points on the drop surface that cannot cut ``thresh`` into the part."""
+        return 2.0 * math.sqrt(thresh * (2.0 * self.radius - thresh))
+
     def _split_safe(self, P, seg, thresh, max_levels: int = 60):
         """Halve moves ``seg`` until every piece is at most ``L_safe`` long (3D).
 
@@ -979,7 +968,7 @@ class BallCutter:
         :meth:`refine` with ``d0 = d1 = 0``). Moves with (almost) no XY extent are not
         split, as in :meth:`refine`.
         """
-        l_safe = 2.0 * math.sqrt(thresh * (2.0 * self.radius - thresh))
+        l_safe = self._l_safe(thresh)
         check = np.zeros(len(P) - 1, dtype=bool)
         check[seg] = True
         for _ in range(max_levels):
@@ -998,8 +987,7 @@ class BallCutter:
     def _worst_points(self, P, seg, thresh, floor2, max_depth):
         """``(t, depth, drop height)`` of the deepest violating chord point of each move ``seg``: see ``_worst_points``."""
         gx0, gy0, cell, ncx, ncy = self._grid
-        l_safe = 2.0 * math.sqrt(thresh * (2.0 * self.radius - thresh))  # r^2 - floor2, without cancellation
-        return _worst_points(P, seg.astype(np.int64), self.radius, thresh, floor2, l_safe, max_depth,
+        return _worst_points(P, seg.astype(np.int64), self.radius, thresh, floor2, self._l_safe(thresh), max_depth,
                              self._T, self._B, gx0, gy0, cell, ncx, ncy, self._cstart, self._ctri,
                              self._czmax, self._EB, self._CP, self._maxwin)
 

@@ -89,7 +89,7 @@ class Warp:
 
     def __init__(self, tau, G, start: float, end, closed: bool):
         self.tau = np.asarray(tau, dtype=np.float64)
-        self.G = np.asarray(G, dtype=np.float64)
+        self.G = np.ascontiguousarray(G, dtype=np.float64)
         self.start = float(start)
         self.end = end
         self.closed = bool(closed)
@@ -98,7 +98,7 @@ class Warp:
         """Fraction ``x`` and its derivative ``dx/ds`` at levels ``s`` and ``tau`` (bilinear)."""
         tau = np.ascontiguousarray(tau, dtype=np.float64)
         s = np.ascontiguousarray(np.broadcast_to(np.asarray(s, dtype=np.float64), tau.shape))
-        x, dx = _bilinear(np.ascontiguousarray(self.G), s.reshape(-1), tau.reshape(-1), self.closed)
+        x, dx = _bilinear(self.G, s.reshape(-1), tau.reshape(-1), self.closed)
         return x.reshape(tau.shape), dx.reshape(tau.shape)
 
     def offset(self, s, tau, end=None):

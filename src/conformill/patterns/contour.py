@@ -23,7 +23,7 @@ def plan_rings(planner, poly, delta: float, progress=None, adaptive: bool = True
     if not adaptive:
         return fam, planner.run(fam, 0.0, poly.R0, progress=progress)
     fam = Rings(poly, delta, warp=build_warp(planner, fam, 0.0, fam.end))
-    return fam, planner.run(fam, 0.0, 1.0, progress=progress)
+    return fam, planner.run_local(fam, 0.0, 1.0, progress=progress)
 
 
 def plan_contour(planner, poly, delta: float, progress=None, adaptive: bool = True):

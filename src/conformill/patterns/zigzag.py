@@ -37,7 +37,8 @@ def plan_zigzag(planner, X: float, Y: float, delta: float, progress=None, adapti
     if adaptive:
         fam = IsoU(Y, delta, warp=build_warp(planner, fam, 0.0, lambda tau: np.full(np.shape(tau), float(X))))
         s_end = 1.0
-    curves, realised, predicted, shrinks = planner.run(fam, 0.0, s_end, progress=progress)
+    run = planner.run_local if adaptive else planner.run
+    curves, realised, predicted, shrinks = run(fam, 0.0, s_end, progress=progress)
     pieces = []
     for i, c in enumerate(curves):
         rev = i % 2 == 1

@@ -217,11 +217,15 @@ def warm_up():
         format_gcode(res.toolpath, feed=1000.0)
 
 
+#: conformill's ``--spacing`` for the compared programs (``--spacing`` of this script)
+SPACING = "adaptive"
+
+
 def conformill_program(mesh, pattern, r, h, e, path: Path, feed: float = 1000.0):
     from conformill.output.gcode import write_gcode
     from conformill.pipeline import Job, plan
 
-    job = Job(pattern=pattern, tool_radius=r, scallop=h, tolerance=e, feed=feed)
+    job = Job(pattern=pattern, tool_radius=r, scallop=h, tolerance=e, feed=feed, spacing=SPACING)
     t0 = time.perf_counter()
     c0 = time.process_time()
     res = plan(mesh, job)
@@ -432,11 +436,15 @@ def main(argv=None) -> int:
     ap.add_argument("--e", type=float, default=0.01, help="chord tolerance (default 0.01)")
     ap.add_argument("--samples", type=int, default=None, help="verify samples (default 400000; --quick 100000)")
     ap.add_argument("--keep", default=None, help="folder for the programs (default: a temporary one)")
+    ap.add_argument("--spacing", default="adaptive", choices=["adaptive", "paper", "local"],
+                    help="conformill's --spacing (default adaptive)")
     ap.add_argument("--md", default=None, help="write the tables as Markdown here")
     ap.add_argument("--json", default=None, help="write all figures as JSON here")
     ap.add_argument("--reverify", default=None, metavar="OLD.json",
                     help="only verify the programs kept in --keep again (figures of a previous run)")
     args = ap.parse_args(argv)
+    global SPACING
+    SPACING = args.spacing
     if args.reverify:
         old = json.loads(Path(args.reverify).read_text())
         res = [reverify(R, Path(args.keep), print) for R in old["results"]]

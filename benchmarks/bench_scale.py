@@ -10,7 +10,7 @@ interleaved so that background load hits both alike. The stage timings come from
 plan's JSON report.
 
     python benchmarks/bench_scale.py [MESH] [--scale 1400] [--patterns zigzag contour spiral]
-        [--h 0.01] [--repeat 1]
+        [--h 0.01] [--repeat 1] [--spacing adaptive|paper|local]
 """
 
 from __future__ import annotations
@@ -37,6 +37,7 @@ def main(argv=None) -> int:
     ap.add_argument("--tolerance", type=float, default=0.01)
     ap.add_argument("--radius", type=float, default=4.0)
     ap.add_argument("--repeat", type=int, default=1)
+    ap.add_argument("--spacing", default="adaptive", choices=["adaptive", "paper", "local"])
     args = ap.parse_args(argv)
     igl_cmd = [sys.executable, "-c", IGL_CHILD, args.mesh, str(args.scale)]
     print(f"mesh {args.mesh} x{args.scale:g}; r = {args.radius:g}, h = {args.h:g}, e = {args.tolerance:g}; "
@@ -47,7 +48,7 @@ def main(argv=None) -> int:
             nc, rep = str(Path(tmp) / f"{pat}.nc"), str(Path(tmp) / f"{pat}.json")
             cmd = [sys.executable, "-m", "conformill", "plan", args.mesh, "--scale", str(args.scale),
                    "--pattern", pat, "--tool-radius", str(args.radius), "--scallop", str(args.h),
-                   "--tolerance", str(args.tolerance), "-o", nc, "--report", rep, "-q"]
+                   "--tolerance", str(args.tolerance), "--spacing", args.spacing, "-o", nc, "--report", rep, "-q"]
             for _ in range(args.repeat):
                 w_igl, rss_igl, out = run_child(igl_cmd)
                 h_igl = float(out.split("HARMONIC")[1].split()[0])

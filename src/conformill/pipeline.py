@@ -58,11 +58,15 @@ class Job:
         on the face sample). "flat" (default) never spaces concave regions wider than a
         plane would be.
     spindle : float or None
-    spacing : {"adaptive", "paper"}
+    spacing : {"adaptive", "paper", "local"}
         "paper": each path is an iso-line spaced from the last by the minimum allowed step
         over it (METHOD 5). "adaptive" (default): the paths bend so that each place gets
         the step it needs (:mod:`conformill.patterns.warp`); the same 3D spacing check
-        applies to both.
+        applies to both. "local": adaptive, and zigzag rows and contour rings also dent
+        locally where a narrow dip of the allowed step would otherwise set the whole
+        path's step (:meth:`conformill.patterns.family.Planner.run_local`): 18-28 % shorter
+        on scans, but more material at scan creases (igea contour: 1.39 h above the rest
+        against 1.06 h); the spiral plans as with "adaptive".
     """
 
     pattern: str = "spiral"
@@ -111,8 +115,8 @@ def check_job(job: Job) -> None:
         raise PlanningError(f"orient must be 'none' or 'auto', got {job.orient!r}")
     if job.concave_steps not in ("flat", "exact"):
         raise PlanningError(f"concave_steps must be 'flat' or 'exact', got {job.concave_steps!r}")
-    if job.spacing not in ("adaptive", "paper"):
-        raise PlanningError(f"spacing must be 'adaptive' or 'paper', got {job.spacing!r}")
+    if job.spacing not in ("adaptive", "paper", "local"):
+        raise PlanningError(f"spacing must be 'adaptive', 'paper' or 'local', got {job.spacing!r}")
 
 
 def face_normals(V: np.ndarray, F: np.ndarray):
@@ -292,15 +296,18 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
 
     with timer("pattern"):
         prog = (lambda f: say("pattern", f))
-        adaptive = job.spacing == "adaptive"
+        adaptive = job.spacing in ("adaptive", "local")
+        local = job.spacing == "local"
         if job.pattern == "zigzag":
             X, Y = param.domain
-            domain, pieces = plan_zigzag(planner, X, Y, delta, progress=prog, adaptive=adaptive)
+            domain, pieces = plan_zigzag(planner, X, Y, delta, progress=prog, adaptive=adaptive, local=local)
         else:
             uvb = param.uv[param.boundary]
             poly = BoundaryPolygon(uvb)
-            fn_ = plan_contour if job.pattern == "contour" else plan_spiral
-            domain, pieces = fn_(planner, poly, delta, progress=prog, adaptive=adaptive)
+            if job.pattern == "contour":
+                domain, pieces = plan_contour(planner, poly, delta, progress=prog, adaptive=adaptive, local=local)
+            else:
+                domain, pieces = plan_spiral(planner, poly, delta, progress=prog, adaptive=adaptive)
 
     link_max = job.link_max if job.link_max is not None else max(2.0 * r, 4.0 * flat_ls)
 

@@ -12,21 +12,23 @@ from conformill.patterns.pieces import Piece, domain_paths
 from conformill.patterns.warp import build_warp
 
 
-def plan_rings(planner, poly, delta: float, progress=None, adaptive: bool = True):
+def plan_rings(planner, poly, delta: float, progress=None, adaptive: bool = True, local: bool = False):
     """The ring levels and curves of the contour family.
 
     With ``adaptive`` the rings bend to follow the local step
     (:mod:`conformill.patterns.warp`) and their ``s`` are levels in [0, 1]; without, they
-    are the paper's circles ``rho = s`` up to ``R0``.
+    are the paper's circles ``rho = s`` up to ``R0``. With ``local`` too, the rings dent
+    locally instead of taking the minimum step (:meth:`Planner.run_local`).
     """
     fam = Rings(poly, delta)
     if not adaptive:
         return fam, planner.run(fam, 0.0, poly.R0, progress=progress)
     fam = Rings(poly, delta, warp=build_warp(planner, fam, 0.0, fam.end))
-    return fam, planner.run_local(fam, 0.0, 1.0, progress=progress)
+    run = planner.run_local if local else planner.run
+    return fam, run(fam, 0.0, 1.0, progress=progress)
 
 
-def plan_contour(planner, poly, delta: float, progress=None, adaptive: bool = True):
+def plan_contour(planner, poly, delta: float, progress=None, adaptive: bool = True, local: bool = False):
     """Plan contour-parallel rings, centre outwards.
 
     Returns
@@ -34,7 +36,7 @@ def plan_contour(planner, poly, delta: float, progress=None, adaptive: bool = Tr
     domain : conformill.types.DomainPaths
     pieces : list of Piece
     """
-    fam, (curves, realised, predicted, shrinks) = plan_rings(planner, poly, delta, progress, adaptive)
+    fam, (curves, realised, predicted, shrinks) = plan_rings(planner, poly, delta, progress, adaptive, local)
     pieces = []
     for i, c in enumerate(curves):
         pieces.append(Piece("path", c, False, i))

@@ -14,7 +14,8 @@ from conformill.patterns.pieces import Piece, domain_paths
 from conformill.patterns.warp import build_warp
 
 
-def plan_zigzag(planner, X: float, Y: float, delta: float, progress=None, adaptive: bool = True):
+def plan_zigzag(planner, X: float, Y: float, delta: float, progress=None, adaptive: bool = True,
+                local: bool = False):
     """Plan zigzag paths.
 
     Parameters
@@ -27,6 +28,9 @@ def plan_zigzag(planner, X: float, Y: float, delta: float, progress=None, adapti
     adaptive : bool
         Rows bend to follow the local step (:mod:`conformill.patterns.warp`); False gives
         the paper's iso-u lines spaced by the minimum step over each line.
+    local : bool
+        With ``adaptive``, rows also dent locally instead of taking the minimum step
+        (:meth:`conformill.patterns.family.Planner.run_local`).
 
     Returns
     -------
@@ -37,7 +41,7 @@ def plan_zigzag(planner, X: float, Y: float, delta: float, progress=None, adapti
     if adaptive:
         fam = IsoU(Y, delta, warp=build_warp(planner, fam, 0.0, lambda tau: np.full(np.shape(tau), float(X))))
         s_end = 1.0
-    run = planner.run_local if adaptive else planner.run
+    run = planner.run_local if adaptive and local else planner.run
     curves, realised, predicted, shrinks = run(fam, 0.0, s_end, progress=progress)
     pieces = []
     for i, c in enumerate(curves):

@@ -232,7 +232,8 @@ def forward_step(e, kappa, max_step):
     ak = np.abs(np.asarray(kappa, dtype=np.float64))
     cap = np.asarray(max_step, dtype=np.float64)
     ok = np.isfinite(ak) & (ak > 0) & (e * ak < 2.0)
-    with np.errstate(invalid="ignore", divide="ignore"):
+    # a subnormal |kappa| overflows to inf, which the cap then bounds
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
         w = 2.0 * np.sqrt(e * (2.0 - e * ak) / np.where(ok, ak, 1.0))
     return np.where(ok, np.minimum(w, cap), cap * np.ones_like(w))
 

@@ -407,6 +407,19 @@ class Planner:
         return c.ls * S.length(c.t) / (S.area_factor() * c.rate)
 
     # -- the family ---------------------------------------------------------------
+    def _checked_steps(self, cur: Curve, n_paths: int, max_paths: int, min_step: float) -> np.ndarray:
+        """:meth:`domain_steps` of ``cur``; PlanningError for too many paths or a collapsed step."""
+        if n_paths > max_paths:
+            raise PlanningError(f"more than {max_paths} paths: the scallop height is too small for this part")
+        steps = self.domain_steps(cur)
+        low = float(np.min(steps))
+        if not np.isfinite(low) or low <= min_step:
+            raise PlanningError(
+                f"side step collapsed to {low:.3g} at offset {cur.s:.6g}: "
+                "degenerate surface frame (check the mesh for slivers)"
+            )
+        return steps
+
     def run(self, family: Family, s0: float, s_max: float, max_paths: int = 200000, progress=None):
         """Plan curves from ``s0`` to ``s_max`` (both included).
 
@@ -426,17 +439,8 @@ class Planner:
         curves, realised, predicted = [cur], [], []
         shrinks = 0
         while cur.s < s_max:
-            if len(curves) > max_paths:
-                raise PlanningError(
-                    f"more than {max_paths} paths: the scallop height is too small for this part"
-                )
-            steps = self.domain_steps(cur)
+            steps = self._checked_steps(cur, len(curves), max_paths, min_step)
             base = float(np.min(steps))
-            if not np.isfinite(base) or base <= min_step:
-                raise PlanningError(
-                    f"side step collapsed to {base:.3g} at offset {cur.s:.6g}: "
-                    "degenerate surface frame (check the mesh for slivers)"
-                )
             step = base
             hint = None
             for _ in range(12):
@@ -507,17 +511,7 @@ class Planner:
         shrinks = 0
         closed = family.closed
         while np.min(cur.levels) < done:
-            if len(curves) > max_paths:
-                raise PlanningError(
-                    f"more than {max_paths} paths: the scallop height is too small for this part"
-                )
-            steps = self.domain_steps(cur)
-            low = float(np.min(steps))
-            if not np.isfinite(low) or low <= min_step:
-                raise PlanningError(
-                    f"side step collapsed to {low:.3g} at offset {cur.s:.6g}: "
-                    "degenerate surface frame (check the mesh for slivers)"
-                )
+            steps = self._checked_steps(cur, len(curves), max_paths, min_step)
             ceiling = min(ceiling + float(np.percentile(steps, quantile)), s_max)
             lv = cur.levels
             seg = np.linalg.norm(np.diff(cur.sample.xyz, axis=0), axis=1)

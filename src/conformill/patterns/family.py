@@ -210,6 +210,22 @@ def pair_distances(a, b, closed: bool = False):
 
 
 @njit(cache=True)
+def _sweep(E, seg, k, closed, reverse):
+    """One pass of :func:`_envelope` along the gaps (backwards with ``reverse``), in place."""
+    m = seg.shape[0]
+    for q in range(m):
+        g = m - 1 - q if reverse else q
+        i, j = (g + 1, g) if reverse else (g, g + 1)
+        v = E[i] + k[g] * seg[g]
+        if v < E[j]:
+            E[j] = v
+    if closed:
+        v = min(E[0], E[m])
+        E[0] = v
+        E[m] = v
+
+
+@njit(cache=True)
 def _envelope(A, seg, k, closed):
     """Largest function below ``A`` whose slope between samples is at most ``k``.
 
@@ -218,30 +234,11 @@ def _envelope(A, seg, k, closed):
     per unit length at each gap). For a closed curve the first and the last sample are
     the same point and the passes go round twice.
     """
-    n = A.shape[0]
     E = A.copy()
     laps = 2 if closed else 1
-    m = n - 1  # gaps
-    for _ in range(laps):
-        for g in range(m):
-            i, j = g, g + 1
-            v = E[i] + k[g] * seg[g]
-            if v < E[j]:
-                E[j] = v
-        if closed:
-            v = min(E[0], E[n - 1])
-            E[0] = v
-            E[n - 1] = v
-    for _ in range(laps):
-        for g in range(m - 1, -1, -1):
-            i, j = g + 1, g
-            v = E[i] + k[g] * seg[g]
-            if v < E[j]:
-                E[j] = v
-        if closed:
-            v = min(E[0], E[n - 1])
-            E[0] = v
-            E[n - 1] = v
+    for reverse in (False, True):
+        for _ in range(laps):
+            _sweep(E, seg, k, closed, reverse)
     return E
 
 

@@ -114,3 +114,29 @@ def test_concave_trough_spacing_flat_cap_and_exact_formula():
             assert np.nanmax(ls) <= flat * (1 + 1e-6)
         else:  # where the rings run along the axis, the step is the concave one (fitted curvature)
             assert np.nanpercentile(ls, 95) == pytest.approx(concave, rel=0.05)
+
+
+def test_concave_regions_are_components_sorted_by_area():
+    """The report's concave regions against a per-component loop (two disjoint blobs)."""
+    from conformill.mesh.topology import face_components
+    from conformill.pipeline import _regions, face_normals
+
+    m = synthetic.plane(size=40.0, spacing=2.0, jitter=0.25, seed=3)
+    _, fa = face_normals(m.V, m.F)
+    cen = m.V[m.F].mean(axis=1)
+    mask = (np.hypot(cen[:, 0] + 10, cen[:, 1]) < 6) | (np.hypot(cen[:, 0] - 10, cen[:, 1] - 8) < 4)
+    got = _regions(mask, m, fa)
+    idx = np.flatnonzero(mask)
+    n, lab = face_components(m.F[idx], m.n_vertices)
+    assert n == 2 and len(got) == 2
+    want = []
+    for c in range(n):
+        w = fa[idx][lab == c]
+        want.append((w.sum(), (cen[idx][lab == c] * w[:, None]).sum(0) / w.sum(), int((lab == c).sum())))
+    want.sort(key=lambda t: -t[0])
+    for g, (a, c, k) in zip(got, want):
+        assert g["faces"] == k
+        np.testing.assert_allclose(g["area_mm2"], a, rtol=1e-12)
+        np.testing.assert_allclose(g["centre"], c, atol=1e-9)
+    np.testing.assert_allclose(got[0]["centre"][:2], [-10, 0], atol=0.5)
+    assert _regions(np.zeros(len(m.F), bool), m, fa) == []

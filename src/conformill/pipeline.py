@@ -173,22 +173,23 @@ def principal_concave(sample_I: np.ndarray, sample_II: np.ndarray) -> np.ndarray
 
 
 def _regions(mask_f: np.ndarray, mesh: Mesh, areas: np.ndarray, top: int = 5):
+    """The ``top`` largest connected regions of the faces in ``mask_f``: area, centre, faces."""
     from conformill.mesh.topology import face_components
 
     idx = np.flatnonzero(mask_f)
     if idx.size == 0:
         return []
     sub = mesh.F[idx]
-    _, lab = face_components(sub, mesh.n_vertices)
-    out = []
+    count, lab = face_components(sub, mesh.n_vertices)
+    w = areas[idx]
     cen = mesh.V[sub].mean(axis=1)
-    for c in range(lab.max() + 1):
-        sel = lab == c
-        w = areas[idx][sel]
-        out.append({"area_mm2": float(w.sum()), "centre": (cen[sel] * w[:, None]).sum(0) / max(w.sum(), 1e-300),
-                    "faces": int(sel.sum())})
-    out.sort(key=lambda r: -r["area_mm2"])
-    return out[:top]
+    area = np.bincount(lab, weights=w, minlength=count)
+    faces = np.bincount(lab, minlength=count)
+    centre = np.column_stack([np.bincount(lab, weights=w * cen[:, k], minlength=count) for k in range(3)])
+    centre /= np.maximum(area, 1e-300)[:, None]
+    # largest first; ties keep the component order (a stable sort, as before)
+    order = np.argsort(-area, kind="stable")[:top]
+    return [{"area_mm2": float(area[c]), "centre": centre[c], "faces": int(faces[c])} for c in order]
 
 
 def _stats(x):

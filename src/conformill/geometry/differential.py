@@ -34,7 +34,7 @@ import logging
 import warnings
 
 import numpy as np
-from numba import njit, prange, vectorize
+from numba import njit, prange
 
 from conformill.errors import ConformillError
 from conformill.types import SurfaceFrame
@@ -553,20 +553,29 @@ def normal_curvature(E, F, G, L, M, N, du, dv) -> np.ndarray:
     ndarray of float64
         NaN where the direction is zero or the metric is degenerate.
     """
-    E, F, G, L, M, N, du, dv = (np.asarray(a, dtype=np.float64) for a in (E, F, G, L, M, N, du, dv))
-    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):  # NaN where the fit failed
-        k = _normal_curvature(E, F, G, L, M, N, du, dv)
-    return np.asarray(k, dtype=np.float64)
+    args = [np.asarray(a, dtype=np.float64) for a in (E, F, G, L, M, N, du, dv)]
+    shape = np.broadcast_shapes(*(a.shape for a in args))
+    k = _normal_curvature(*(_flat(a, shape) for a in args))
+    return k.reshape(shape)
 
 
-@vectorize(["float64(float64, float64, float64, float64, float64, float64, float64, float64)"], cache=True)
+def _flat(a: np.ndarray, shape) -> np.ndarray:
+    """``a`` broadcast to ``shape`` as a flat, contiguous, writeable float64 array."""
+    if a.shape == shape:
+        return np.ascontiguousarray(a).reshape(-1)
+    return np.broadcast_to(a, shape).flatten()
+
+
+@njit(cache=True, error_model="numpy")
 def _normal_curvature(E, F, G, L, M, N, du, dv):
-    """:func:`normal_curvature` at one point (a compiled ufunc)."""
-    num = L * du * du + 2.0 * M * du * dv + N * dv * dv
-    den = E * du * du + 2.0 * F * du * dv + G * dv * dv
-    if den > 0:
-        return num / den
-    return np.nan
+    """:func:`normal_curvature` over flat arrays (compiled; NaN where the form is not positive)."""
+    out = np.empty(E.size)
+    for i in range(E.size):
+        a, b = du[i], dv[i]
+        num = L[i] * a * a + 2.0 * M[i] * a * b + N[i] * b * b
+        den = E[i] * a * a + 2.0 * F[i] * a * b + G[i] * b * b
+        out[i] = num / den if den > 0 else np.nan
+    return out
 
 
 def frame_normal_curvature(frame: SurfaceFrame, du, dv) -> np.ndarray:

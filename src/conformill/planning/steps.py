@@ -59,7 +59,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import vectorize
+from numba import njit
 
 from conformill.errors import PlanningError
 from conformill.types import PathParams
@@ -129,17 +129,25 @@ def side_interval(h, r, kappa):
     h = np.asarray(h, dtype=np.float64)
     k = np.asarray(kappa, dtype=np.float64)
     r = float(r)
-    h, k = np.broadcast_arrays(h, k)
+    shape = np.broadcast_shapes(h.shape, k.shape)
+    h = np.broadcast_to(h, shape).flatten()  # flat, contiguous, writeable copies
+    k = np.broadcast_to(k, shape).flatten()
     reachable = np.isfinite(k) & (r * k < 1.0)
-    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):  # inf / NaN curvatures
-        w = _side_interval_w(h, k, r)
-    return np.asarray(w, dtype=np.float64), reachable
+    return _side_interval_w(h, k, r).reshape(shape), reachable.reshape(shape)
 
 
-@vectorize(["float64(float64, float64, float64)"], cache=True)
+@njit(cache=True, error_model="numpy")
 def _side_interval_w(h, k, r):
-    """:func:`side_interval`'s chord at one point (a compiled ufunc: the planner calls it on
+    """:func:`side_interval`'s chord over flat arrays (compiled: the planner calls it on
     every dense sample of every curve it evaluates)."""
+    out = np.empty(h.size)
+    for i in range(h.size):
+        out[i] = _side_interval_one(h[i], k[i], r)
+    return out
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _side_interval_one(h, k, r):
     flat = 2.0 * math.sqrt(h * (2.0 * r - h))
     if not (math.isfinite(k) and r * k < 1.0):
         return flat

@@ -84,7 +84,7 @@ _MAX_CELLS = 4_000_000
 # --------------------------------------------------------------------------------------
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, nogil=True, inline="always")
 def _arc_max(rho2, s0, lo, hi, m, c0):
     """Largest ``c0 + m s + sqrt(rho2 - (s - s0)^2)`` over ``s`` in ``[lo, hi]`` with
     ``|s - s0| <= sqrt(rho2)``; ``-inf`` when that set is empty.
@@ -106,7 +106,7 @@ def _arc_max(rho2, s0, lo, hi, m, c0):
     return c0 + m * s + math.sqrt(max(rho2 - w * w, 0.0))
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, nogil=True, inline="always")
 def _seg_drop(px, py, r2, ax, ay, az, bx, by, bz):
     """Centre height of a ball at (px, py) resting on the closed segment a-b (edge or end
     vertex); -inf if out of reach: :func:`_arc_max` along the edge (XY position in
@@ -131,7 +131,7 @@ def _seg_drop(px, py, r2, ax, ay, az, bx, by, bz):
     return _arc_max(r2 - d * d, wx * ux + wy * uy, 0.0, L, (bz - az) / L, az)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _tri_drop(px, py, r, r2, T, t):
     """Drop height of the ball centre onto triangle ``t`` (facet, edges, vertices).
 
@@ -178,7 +178,7 @@ def _tri_drop(px, py, r, r2, T, t):
     return best
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, nogil=True, inline="always")
 def _tangent_bound(px, py, r2, T, B, t):
     """Upper bound of the drop height onto triangle ``t`` (``+inf`` when not applicable).
 
@@ -205,7 +205,7 @@ def _tangent_bound(px, py, r2, T, B, t):
     return B[t, 10] + w + m
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, nogil=True, inline="always")
 def _cell_bound(px, py, r2, x0, y0, cell, CP, c):
     """Upper bound of the drop height from contacts in cell ``c`` (the column ``[x0, x0 +
     cell] x [y0, y0 + cell]``), whose triangles all lie below the plane ``z = gx x + gy y
@@ -242,7 +242,7 @@ def _cell_bound(px, py, r2, x0, y0, cell, CP, c):
     return bound
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, nogil=True, inline="always")
 def _scan_cell(px, py, r, r2, T, B, cstart, ctri, EB, c, hc, best, besttri):
     """Test the triangles of cell ``c`` (``hc = sqrt(r^2 - dist(p, cell)^2)``)."""
     for e in range(cstart[c], cstart[c + 1]):
@@ -281,7 +281,7 @@ def _scan_cell(px, py, r, r2, T, B, cstart, ctri, EB, c, hc, best, besttri):
     return best, besttri
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _drop_point(px, py, r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, CP,
                 warm, cid, cbound, floor):
     """Drop height at one point; returns (height, contact triangle or -1).
@@ -368,7 +368,7 @@ def _drop_point(px, py, r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czm
     return best, besttri
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, nogil=True, parallel=True)
 def _drop_many(xy, r, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, CP, maxwin, floor):
     k = xy.shape[0]
     out = np.empty(k, dtype=np.float64)
@@ -389,7 +389,7 @@ def _drop_many(xy, r, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, C
     return out, hit
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, nogil=True, inline="always")
 def _piece_ok(r, d0, d1, l2, floor2):
     """Whether the bound ``min_t f(t) >= (r - tol/2)^2`` holds (see ``BallCutter.refine``)."""
     fa = (r - d0) * (r - d0)
@@ -399,7 +399,7 @@ def _piece_ok(r, d0, d1, l2, floor2):
     return fa + ts * (fb - fa - l2) + ts * ts * l2 >= floor2
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _grow(q0, q1, e0, e1, k, need):
     """Buffers of at least ``need`` entries holding the first ``k`` of the old ones."""
     cap = q0.shape[0]
@@ -416,7 +416,7 @@ def _grow(q0, q1, e0, e1, k, need):
     return n0, n1, m0, m1
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, nogil=True, inline="always")
 def _chord_drop(ax, ay, az, vx, vy, vz, t, r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, CP,
                 warm, cid, cbound):
     """Drop height over the chord point ``a + t v`` with the chord height as floor.
@@ -430,7 +430,7 @@ def _chord_drop(ax, ay, az, vx, vy, vz, t, r, r2, T, B, gx0, gy0, cell, ncx, ncy
     return h, h - zz, (tri if tri >= 0 else warm)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _check_move(ax, ay, az, vx, vy, vz, r, thresh, floor2, l_safe, max_depth, T, B, gx0, gy0, cell,
                 ncx, ncy, cstart, ctri, czmax, EB, CP, warm, cid, cbound, q0, q1, e0, e1):
     """Bisection of one move (see ``_worst_points``).
@@ -512,7 +512,7 @@ def _check_move(ax, ay, az, vx, vy, vz, r, thresh, floor2, l_safe, max_depth, T,
     return best_t, best_d, best_h, warm, q0, q1, e0, e1
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, nogil=True, parallel=True)
 def _worst_points(P, seg, r, thresh, floor2, l_safe, max_depth, T, B, gx0, gy0, cell, ncx, ncy,
                   cstart, ctri, czmax, EB, CP, maxwin):
     """Per move ``P[seg[i]] -> P[seg[i] + 1]``: chord parameter, depth below the drop
@@ -553,7 +553,7 @@ def _worst_points(P, seg, r, thresh, floor2, l_safe, max_depth, T, B, gx0, gy0, 
     return wt, wd, wz
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, nogil=True, parallel=True)
 def _tables(V, F, r):
     """Per-triangle tables ``T (m, 13)`` (vertices, unit up normal, 1 / det_xy) and
     ``B (m, 11)`` (XY box, top z, plane-bound coefficients, centroid)."""
@@ -611,7 +611,7 @@ def _tables(V, F, r):
     return T, B
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _build_grid(T, B, r, gx0, gy0, cell, ncx, ncy):
     """CSR lists of triangles per cell (by XY box overlap) and the cells' highest top."""
     m = B.shape[0]

@@ -18,7 +18,7 @@ from conformill import __version__
 from conformill.errors import PlanningError
 from conformill.geometry.surface import DomainSurface
 from conformill.patterns.family import Planner
-from conformill.patterns.forward import select_forward
+from conformill.passes import PassBuilder, threads_can_overlap
 from conformill.planning.steps import check_params, side_interval
 from conformill.types import Mesh, PathParams, PlanResult, ToolPath
 
@@ -295,74 +295,41 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
     planner = Planner(surface, params, seg_len, concave_cap=flat_ls if job.concave_steps == "flat" else None,
                       rise_tol=e_fwd, max_step=job.max_step)
 
-    with timer("pattern"):
-        prog = (lambda f: say("pattern", f))
-        adaptive = job.spacing in ("adaptive", "local")
-        local = job.spacing == "local"
-        if job.pattern == "zigzag":
-            X, Y = param.domain
-            domain, pieces = plan_zigzag(planner, X, Y, delta, progress=prog, adaptive=adaptive, local=local)
-        else:
-            uvb = param.uv[param.boundary]
-            poly = BoundaryPolygon(uvb)
-            if job.pattern == "contour":
-                domain, pieces = plan_contour(planner, poly, delta, progress=prog, adaptive=adaptive, local=local)
-            else:
-                domain, pieces = plan_spiral(planner, poly, delta, progress=prog, adaptive=adaptive)
-
     link_max = job.link_max if job.link_max is not None else max(2.0 * r, 4.0 * flat_ls)
-
-    with timer("forward"):
-        cc_paths, fwd_steps = [], []
-        groups = [[]]  # passes of (cc, n) chunks
-        group_paths = [[]]
-        n_retracts_link = 0
-        for pc in pieces:
-            c = pc.curve
-            S = c.sample
-            order = slice(None, None, -1) if pc.reverse else slice(None)
-            X3 = S.xyz[order]
-            kap = S.curvature(c.t)[order]
-            idx = select_forward(X3, kap, e_fwd, job.max_step, e_convex=e_cvx)
-            # the fitted (smooth) normal: with the facet's the contact would sit exactly on
-            # the CC point, but the centre path would jitter at every edge; measured, it
-            # changes the scallop by less than 1 % (cad_like_0, h = 0.01)
-            cc, nn = X3[idx], S.n[order][idx]
-            if pc.kind == "path":
-                cc_paths.append(cc)
-                if len(cc) > 1:
-                    fwd_steps.append(np.linalg.norm(np.diff(cc, axis=0), axis=1))
-                groups[-1].append((cc, nn))
-                group_paths[-1].append(pc.index)
+    # forward steps and the cutter run on each piece as the pattern stage finishes it,
+    # in a worker thread where numba allows (passes.py); the program is the same either way
+    builder = PassBuilder(lambda: BallCutter(mesh.V, mesh.F, r), e, e_fwd, e_cvx, job.max_step, link_max,
+                          threaded=threads_can_overlap())
+    try:
+        with timer("pattern"):
+            prog = (lambda f: say("pattern", f))
+            adaptive = job.spacing in ("adaptive", "local")
+            local = job.spacing == "local"
+            if job.pattern == "zigzag":
+                X, Y = param.domain
+                domain, pieces = plan_zigzag(planner, X, Y, delta, progress=prog, adaptive=adaptive, local=local,
+                                             emit=builder.add)
             else:
-                L = float(np.linalg.norm(np.diff(X3, axis=0), axis=1).sum())
-                if L <= link_max:
-                    groups[-1].append((cc[1:-1], nn[1:-1]))
+                uvb = param.uv[param.boundary]
+                poly = BoundaryPolygon(uvb)
+                if job.pattern == "contour":
+                    domain, pieces = plan_contour(planner, poly, delta, progress=prog, adaptive=adaptive,
+                                                  local=local, emit=builder.add)
                 else:
-                    n_retracts_link += 1
-                    groups.append([])
-                    group_paths.append([])
-    say("cutter", 0.0)
-    with timer("cutter"):
-        cutter = BallCutter(mesh.V, mesh.F, r)
-        passes, lifts, pass_ids = [], [], []
-        for chunks, ids in zip(groups, group_paths):
-            if not chunks:
-                continue
-            cc = np.concatenate([c for c, _ in chunks])
-            nn = np.concatenate([n for _, n in chunks])
-            centres, lift = cutter.cl_from_cc(cc, nn)
-            ok = np.isfinite(centres[:, 2])
-            centres = centres[ok]
-            lifts.append(lift[ok])
-            # no centre move cuts more than e / 2 into the part (an exact bound): half of
-            # the gouge budget e, the other half left to the mesh facets between samples
-            centres = cutter.refine(centres, e)
-            # drop consecutive duplicates (a centre point path, link ends)
-            keep = np.ones(len(centres), dtype=bool)
-            keep[1:] = np.any(np.abs(np.diff(centres, axis=0)) > 1e-9, axis=1)
-            passes.append(cutter.tip(centres[keep]))
-            pass_ids.append(ids[0] if ids else -1)
+                    domain, pieces = plan_spiral(planner, poly, delta, progress=prog, adaptive=adaptive,
+                                                 emit=builder.add)
+        say("cutter", 0.0)
+        t_wait = time.perf_counter()
+        passes, pass_ids, lifts = builder.finish()
+        t_wait = time.perf_counter() - t_wait
+    finally:
+        builder.abort()
+    # forward and cutter: busy time (beside the pattern stage when threaded; then
+    # cutter_wait is how long the plan waited for the cutter after the last path)
+    timer.t.update(builder.timings)
+    if builder.threaded:
+        timer.t["cutter_wait"] = t_wait
+    cc_paths, fwd_steps, n_retracts_link = builder.cc_paths, builder.fwd_steps, builder.n_retracts_link
     toolpath = ToolPath(passes=passes, safe_z=safe_z, pass_ids=pass_ids)
 
     # -- figures -----------------------------------------------------------------

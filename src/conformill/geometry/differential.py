@@ -55,7 +55,7 @@ NORMAL_MAX_ANGLE = 60.0
 # --------------------------------------------------------------------------------------
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _ring_csr(F, n):
     m = F.shape[0]
     cnt = np.zeros(n + 1, dtype=np.int64)
@@ -101,7 +101,7 @@ def _ring_csr(F, n):
 # --------------------------------------------------------------------------------------
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _fit_one(i, ids, cnt, V, uv, coef, rc_out, quadratic):
     """Fit at vertex ``i`` over ``i`` and ``ids[:cnt]``; write ``coef[i]`` (6, 3).
 
@@ -201,7 +201,7 @@ def _fit_one(i, ids, cnt, V, uv, coef, rc_out, quadratic):
     return rc
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, nogil=True, parallel=True)
 def _fit_1ring(ptr, nb, boundary, V, uv, coef, rc, rcond_min):
     """1-ring fit of every interior vertex; returns a mask of vertices to widen."""
     n = V.shape[0]
@@ -220,7 +220,7 @@ def _fit_1ring(ptr, nb, boundary, V, uv, coef, rc, rcond_min):
     return widen
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, nogil=True, parallel=True)
 def _fit_kring(which, depth, ptr, nb, V, uv, coef, rc, rcond_min, quadratic):
     """Fit the vertices ``which`` over their ``depth``-ring; returns which still failed."""
     k = which.shape[0]
@@ -497,7 +497,7 @@ def interpolate(values: np.ndarray, F: np.ndarray, face: np.ndarray, bary: np.nd
     return out.reshape((len(face),) + values.shape[1:])
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _interp_rows(values, F, face, bary):
     """``out[p] = sum_k bary[p, k] values[F[face[p], k]]`` for every column of ``values``."""
     k, c = face.shape[0], values.shape[1]
@@ -566,7 +566,7 @@ def _flat(a: np.ndarray, shape) -> np.ndarray:
     return np.broadcast_to(a, shape).flatten()
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def _normal_curvature(E, F, G, L, M, N, du, dv):
     """:func:`normal_curvature` over flat arrays (compiled; NaN where the form is not positive)."""
     out = np.empty(E.size)

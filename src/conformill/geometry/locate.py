@@ -21,7 +21,7 @@ from numba import njit, prange
 from conformill.errors import ConformillError
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _build_grid(uv, F, lo, inv_cell, nx, ny, pad):
     m = F.shape[0]
     x0 = np.empty(m, dtype=np.int64)
@@ -55,7 +55,7 @@ def _build_grid(uv, F, lo, inv_cell, nx, ny, pad):
     return ptr, items
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _closest_on_segment(px, py, ax, ay, bx, by):
     ex, ey = bx - ax, by - ay
     ll = ex * ex + ey * ey
@@ -67,7 +67,7 @@ def _closest_on_segment(px, py, ax, ay, bx, by):
     return (px - qx) * (px - qx) + (py - qy) * (py - qy), t
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, nogil=True, parallel=True)
 def _query(P, uv, F, ptr, items, lo, inv_cell, nx, ny, tol, face, bary):
     k = P.shape[0]
     tol2 = tol * tol

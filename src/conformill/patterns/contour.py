@@ -12,37 +12,52 @@ from conformill.patterns.pieces import Piece, domain_paths
 from conformill.patterns.warp import build_warp
 
 
-def plan_rings(planner, poly, delta: float, progress=None, adaptive: bool = True, local: bool = False):
+def plan_rings(planner, poly, delta: float, progress=None, adaptive: bool = True, local: bool = False,
+               on_curve=None):
     """The ring levels and curves of the contour family.
 
     With ``adaptive`` the rings bend to follow the local step
     (:mod:`conformill.patterns.warp`) and their ``s`` are levels in [0, 1]; without, they
     are the paper's circles ``rho = s`` up to ``R0``. With ``local`` too, the rings dent
     locally instead of taking the minimum step (:meth:`Planner.run_local`).
+    ``on_curve`` is handed to the planner (each ring as soon as it is planned).
     """
     fam = Rings(poly, delta)
     if not adaptive:
-        return fam, planner.run(fam, 0.0, poly.R0, progress=progress)
+        return fam, planner.run(fam, 0.0, poly.R0, progress=progress, on_curve=on_curve)
     fam = Rings(poly, delta, warp=build_warp(planner, fam, 0.0, fam.end))
     run = planner.run_local if local else planner.run
-    return fam, run(fam, 0.0, 1.0, progress=progress)
+    return fam, run(fam, 0.0, 1.0, progress=progress, on_curve=on_curve)
 
 
-def plan_contour(planner, poly, delta: float, progress=None, adaptive: bool = True, local: bool = False):
+def plan_contour(planner, poly, delta: float, progress=None, adaptive: bool = True, local: bool = False,
+                 emit=None):
     """Plan contour-parallel rings, centre outwards.
+
+    ``emit(piece)``, if given, is called with each piece as soon as it is final, in
+    machining order (a ring once the next one is planned, with the link between them).
 
     Returns
     -------
     domain : conformill.types.DomainPaths
     pieces : list of Piece
     """
-    fam, (curves, realised, predicted, shrinks) = plan_rings(planner, poly, delta, progress, adaptive, local)
-    pieces = []
-    for i, c in enumerate(curves):
-        pieces.append(Piece("path", c, False, i))
-        if i + 1 < len(curves):
-            p0 = c.sample.uv[-1]
-            p1 = curves[i + 1].sample.uv[0]
-            link = Segment(p0, p1, delta, clip=poly.clip)
-            pieces.append(Piece("link", planner.evaluate(link, 0.0), False, i))
+    pieces, rings = [], []
+
+    def add(piece):
+        pieces.append(piece)
+        if emit is not None:
+            emit(piece)
+
+    def on_curve(c):
+        rings.append(c)
+        if len(rings) > 1:
+            i, a = len(rings) - 2, rings[-2]
+            add(Piece("path", a, False, i))
+            link = Segment(a.sample.uv[-1], c.sample.uv[0], delta, clip=poly.clip)
+            add(Piece("link", planner.evaluate(link, 0.0), False, i))
+
+    fam, (curves, realised, predicted, shrinks) = plan_rings(planner, poly, delta, progress, adaptive, local,
+                                                             on_curve=on_curve)
+    add(Piece("path", curves[-1], False, len(curves) - 1))
     return domain_paths("contour", curves, realised, predicted, shrinks, closed=True), pieces

@@ -20,7 +20,7 @@ TWO_PI = 2.0 * np.pi
 MIN_CROSSING = 0.25  # floor of |det(a, t)| in a warped family's rate
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _unit_tangent_kernel(P, tau, fallback):
     # np.gradient(P, tau, axis=0) (second order inside, first order at the ends), then
     # normalised; rows of zero length take the fallback

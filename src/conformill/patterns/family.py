@@ -27,7 +27,7 @@ from conformill.planning.steps import side_interval
 log = logging.getLogger(__name__)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _seg_d2(px, py, pz, Q, a, b):
     ax, ay, az = Q[a, 0], Q[a, 1], Q[a, 2]
     ux, uy, uz = Q[b, 0] - ax, Q[b, 1] - ay, Q[b, 2] - az
@@ -40,7 +40,7 @@ def _seg_d2(px, py, pz, Q, a, b):
     return dx * dx + dy * dy + dz * dz
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _walk_distance(P, Q, closed, window):
     k, q = P.shape[0], Q.shape[0]
     out = np.empty(k)
@@ -101,7 +101,7 @@ def _walk_distance(P, Q, closed, window):
     return out
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, nogil=True, parallel=True)
 def _walk_both(Pa, Pb, closed, window):
     """:func:`_walk_distance` both ways between two curves, one way per thread."""
     fwd = np.empty(Pa.shape[0])
@@ -209,7 +209,7 @@ def pair_distances(a, b, closed: bool = False):
     return d_fwd, max(np.max(d_fwd / a.ls), np.max(d_bwd / b.ls))
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _sweep(E, seg, k, closed, reverse):
     """One pass of :func:`_envelope` along the gaps (backwards with ``reverse``), in place."""
     m = seg.shape[0]
@@ -225,7 +225,7 @@ def _sweep(E, seg, k, closed, reverse):
         E[m] = v
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _envelope(A, seg, k, closed):
     """Largest function below ``A`` whose slope between samples is at most ``k``.
 
@@ -417,8 +417,12 @@ class Planner:
             )
         return steps
 
-    def run(self, family: Family, s0: float, s_max: float, max_paths: int = 200000, progress=None):
+    def run(self, family: Family, s0: float, s_max: float, max_paths: int = 200000, progress=None,
+            on_curve=None):
         """Plan curves from ``s0`` to ``s_max`` (both included).
+
+        ``on_curve(curve)``, if given, is called with each curve as soon as it is planned
+        (curves are never changed afterwards).
 
         Returns
         -------
@@ -434,6 +438,8 @@ class Planner:
         min_step = span * 1e-7
         cur = self.evaluate(family, s0)
         curves, realised, predicted = [cur], [], []
+        if on_curve is not None:
+            on_curve(cur)
         shrinks = 0
         while cur.s < s_max:
             steps = self._checked_steps(cur, len(curves), max_paths, min_step)
@@ -454,13 +460,16 @@ class Planner:
             realised.append(d_fwd)
             predicted.append(cur.sample.area_factor() / cur.sample.length(cur.t) * cur.rate * (s_next - cur.s))
             curves.append(nxt)
+            if on_curve is not None:
+                on_curve(nxt)
             cur = nxt
             if progress is not None:
                 progress((cur.s - s0) / span if span > 0 else 1.0)
         return curves, realised, predicted, shrinks
 
     def run_local(self, family: Family, s0: float, s_max: float, quantile: float = 2.0, slope: float = 0.25,
-                  spread_mm: float = 0.5, margin: float = 0.99, max_paths: int = 200000, progress=None):
+                  spread_mm: float = 0.5, margin: float = 0.99, max_paths: int = 200000, progress=None,
+                  on_curve=None):
         """Plan curves from level ``s0`` to ``s_max`` with local steps (adaptive spacing).
 
         Going past the paper's rule (:meth:`run`: every curve a level set, stepped by the
@@ -496,8 +505,8 @@ class Planner:
         ceiling within a few steps of the lowest level helped there (1.04x) but made
         igea longer (146 -> 150 m), so it is not done.
 
-        Returns the same as :meth:`run`; a curve's ``s`` is its lowest level and
-        ``levels`` holds each sample's.
+        Returns the same as :meth:`run` (and calls ``on_curve`` the same way); a curve's
+        ``s`` is its lowest level and ``levels`` holds each sample's.
         """
         span = s_max - s0
         min_step = span * 1e-7
@@ -505,6 +514,8 @@ class Planner:
         cur = self.evaluate(family, s0)
         ceiling = float(s0)
         curves, realised, predicted = [cur], [], []
+        if on_curve is not None:
+            on_curve(cur)
         shrinks = 0
         closed = family.closed
         while np.min(cur.levels) < done:
@@ -556,6 +567,8 @@ class Planner:
             realised.append(d_fwd)
             predicted.append(cur.sample.area_factor() / cur.sample.length(cur.t) * cur.rate * (T - lv))
             curves.append(nxt)
+            if on_curve is not None:
+                on_curve(nxt)
             cur = nxt
             if progress is not None:
                 progress((ceiling - s0) / span if span > 0 else 1.0)

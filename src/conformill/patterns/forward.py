@@ -22,7 +22,7 @@ from numba import njit
 from conformill.planning.steps import forward_step
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _chord_deviation(X, idx):
     k, m = X.shape[0], idx.shape[0]
     dev = np.zeros(m - 1)
@@ -112,7 +112,7 @@ def select_forward(X: np.ndarray, kappa: np.ndarray, e: float, max_step: float, 
     return _add_farthest(np.ascontiguousarray(X, dtype=np.float64), tol, idx.astype(np.int64), max_rounds)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _add_farthest(X, tol, idx, max_rounds):
     """Rounds of: every chord whose farthest skipped sample deviates by more than the
     tightest tolerance over the samples it spans (ends included) gets that sample."""

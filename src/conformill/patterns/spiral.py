@@ -42,7 +42,8 @@ def _next_gap(g, tau, D: float) -> float:
     return float(np.min((g[ok] - (1.0 - tau[ok]) * D) / tau[ok]))
 
 
-def plan_spiral(planner, poly, delta: float, progress=None, adaptive: bool = True, max_turns: int = 200000):
+def plan_spiral(planner, poly, delta: float, progress=None, adaptive: bool = True, max_turns: int = 200000,
+                emit=None):
     """Plan a single spiral pass from the centre to the boundary.
 
     Returns
@@ -50,6 +51,9 @@ def plan_spiral(planner, poly, delta: float, progress=None, adaptive: bool = Tru
     domain : conformill.types.DomainPaths
     pieces : list of Piece
         One path per revolution, with no links: each revolution starts where the last ended.
+
+    ``emit(piece)``, if given, is called with each revolution as soon as it is final (once
+    the next one is planned: only the last revolution is ever planned again).
     """
     rings = Rings(poly, delta)
     warp, s_end = None, poly.R0
@@ -143,11 +147,15 @@ def plan_spiral(planner, poly, delta: float, progress=None, adaptive: bool = Tru
         step = (1.0 - cur.tau) * D + cur.tau * E
         predicted.append(cur.sample.area_factor() / cur.sample.length(cur.t) * cur.rate * step)
         turns.append(nxt)
+        if emit is not None:
+            emit(Piece("path", turns[-2], False, len(turns) - 2))
         if a1 >= s_end:
             done = True
         else:
             levels.append(min(a1 + E, s_end))
         if progress is not None:
             progress(min(levels[-1] / s_end, 1.0))
+    if emit is not None:
+        emit(Piece("path", turns[-1], False, len(turns) - 1))
     pieces = [Piece("path", t, False, i) for i, t in enumerate(turns)]
     return domain_paths("spiral", turns, realised, predicted, shrinks, closed=False), pieces

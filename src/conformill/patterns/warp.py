@@ -35,7 +35,7 @@ from numba import njit
 from scipy.ndimage import gaussian_filter1d
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _bilinear(G, s, tau, closed):
     """``(x, dx/ds)`` of the bilinear interpolation of ``G`` (levels x columns) at levels
     ``s`` (clipped to [0, 1]) and along-parameters ``tau`` (periodic when ``closed``)."""

@@ -15,7 +15,7 @@ from conformill.patterns.warp import build_warp
 
 
 def plan_zigzag(planner, X: float, Y: float, delta: float, progress=None, adaptive: bool = True,
-                local: bool = False):
+                local: bool = False, emit=None):
     """Plan zigzag paths.
 
     Parameters
@@ -31,6 +31,9 @@ def plan_zigzag(planner, X: float, Y: float, delta: float, progress=None, adapti
     local : bool
         With ``adaptive``, rows also dent locally instead of taking the minimum step
         (:meth:`conformill.patterns.family.Planner.run_local`).
+    emit : callable, optional
+        ``emit(piece)`` with each piece as soon as it is final, in machining order (a row
+        once the next one is planned, with the link between them).
 
     Returns
     -------
@@ -42,13 +45,23 @@ def plan_zigzag(planner, X: float, Y: float, delta: float, progress=None, adapti
         fam = IsoU(Y, delta, warp=build_warp(planner, fam, 0.0, lambda tau: np.full(np.shape(tau), float(X))))
         s_end = 1.0
     run = planner.run_local if adaptive and local else planner.run
-    curves, realised, predicted, shrinks = run(fam, 0.0, s_end, progress=progress)
-    pieces = []
-    for i, c in enumerate(curves):
-        rev = i % 2 == 1
-        pieces.append(Piece("path", c, rev, i))
-        if i + 1 < len(curves):
+    pieces, rows = [], []
+
+    def add(piece):
+        pieces.append(piece)
+        if emit is not None:
+            emit(piece)
+
+    def on_curve(c):
+        rows.append(c)
+        if len(rows) > 1:
+            i, a = len(rows) - 2, rows[-2]
+            rev = i % 2 == 1
+            add(Piece("path", a, rev, i))
             end = 0 if rev else -1  # along the side v = 0 or v = Y
-            link = Segment(c.sample.uv[end], curves[i + 1].sample.uv[end], delta)
-            pieces.append(Piece("link", planner.evaluate(link, 0.0), False, i))
+            link = Segment(a.sample.uv[end], c.sample.uv[end], delta)
+            add(Piece("link", planner.evaluate(link, 0.0), False, i))
+
+    curves, realised, predicted, shrinks = run(fam, 0.0, s_end, progress=progress, on_curve=on_curve)
+    add(Piece("path", curves[-1], (len(curves) - 1) % 2 == 1, len(curves) - 1))
     return domain_paths("zigzag", curves, realised, predicted, shrinks, closed=False), pieces

@@ -136,7 +136,7 @@ def side_interval(h, r, kappa):
     return _side_interval_w(h, k, r).reshape(shape), reachable.reshape(shape)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def _side_interval_w(h, k, r):
     """:func:`side_interval`'s chord over flat arrays (compiled: the planner calls it on
     every dense sample of every curve it evaluates)."""
@@ -146,7 +146,7 @@ def _side_interval_w(h, k, r):
     return out
 
 
-@njit(cache=True, inline="always", error_model="numpy")
+@njit(cache=True, nogil=True, inline="always", error_model="numpy")
 def _side_interval_one(h, k, r):
     flat = 2.0 * math.sqrt(h * (2.0 * r - h))
     if not (math.isfinite(k) and r * k < 1.0):

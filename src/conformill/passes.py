@@ -1,0 +1,251 @@
+"""Pieces in machining order -> forward steps (CC points) -> cutter -> tool passes.
+
+The pattern stage hands over each path and link as soon as it is final
+(:class:`PassBuilder.add`); the builder picks the forward steps of the piece, groups the
+pieces into passes (a link longer than ``link_max`` starts a new pass) and runs the ball
+cutter on the CC points in batches. With ``threaded`` this happens in a worker thread
+while the pattern stage plans the next paths: the pattern stage is mostly serial and the
+cutter is parallel, so the two fill both cores instead of taking turns.
+
+Batching changes nothing in the program: the drop-cutter is exact per point, and
+:meth:`conformill.cutter.BallCutter.refine` decides every move on its own (its rounds
+only ever re-check the two halves of a move it split), so refining a batch together with
+the last centre of the batch before gives, point for point, what one call on the whole
+pass gives.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+import time
+
+import numpy as np
+
+from conformill.patterns.forward import select_forward
+
+__all__ = ["PassBuilder", "threads_can_overlap"]
+
+log = logging.getLogger(__name__)
+
+#: CC points cut together (large enough that the cutter's threads stay busy).
+BATCH = 32768
+
+
+def threads_can_overlap() -> bool:
+    """Whether numba's threading layer accepts parallel calls from two threads at once.
+
+    ``tbb`` and ``omp`` do; ``workqueue`` aborts the process on concurrent use. False also
+    when one thread is asked for (``--threads 1``) or no parallel kernel has run yet.
+    """
+    import numba
+
+    try:
+        layer = numba.threading_layer()
+    except ValueError:
+        return False
+    return layer in ("tbb", "omp") and numba.get_num_threads() > 1
+
+
+class _Pass:
+    """One continuous pass being cut: its pending CC points and the centres so far."""
+
+    def __init__(self, path_id: int):
+        self.path_id = path_id
+        self.cc, self.nn, self.pending = [], [], 0
+        self.centres, self.lifts = [], []
+        self.last = None  # last refined centre: the first point of the next batch's moves
+
+
+class PassBuilder:
+    """Forward steps and the cutter for pieces handed over in machining order.
+
+    Parameters
+    ----------
+    make_cutter : callable
+        Returns the :class:`conformill.cutter.BallCutter` (built in the worker, so that
+        building its index overlaps the pattern stage too).
+    tolerance : float
+        ``e``: no centre move cuts more than ``e / 2`` into the part.
+    e_fwd, e_cvx, max_step : float
+        Forward chord tolerances (concave / convex along the path) and longest step.
+    link_max : float
+        Longest link cut on the surface; a longer one ends the pass (a retract).
+    threaded : bool
+        Work in a worker thread (see :func:`threads_can_overlap`).
+    batch : int
+        CC points cut together.
+
+    Notes
+    -----
+    ``timings`` holds the busy time of the forward and cutter work (in the worker when
+    threaded, so they overlap the pattern stage's wall time).
+    """
+
+    def __init__(self, make_cutter, tolerance: float, e_fwd: float, e_cvx: float, max_step: float,
+                 link_max: float, threaded: bool, batch: int = BATCH):
+        self._make_cutter = make_cutter
+        self.cutter = None
+        self.e, self.e_fwd, self.e_cvx, self.max_step = tolerance, e_fwd, e_cvx, max_step
+        self.link_max = link_max
+        self.batch = int(batch)
+        self.timings = {"forward": 0.0, "cutter": 0.0}
+        self.cc_paths, self.fwd_steps = [], []
+        self.n_retracts_link = 0
+        self._passes = [_Pass(-1)]
+        self._done = []  # finished passes
+        self._error = None
+        self._thread = None
+        self._held = []  # pieces handed over, when not threaded (cut in finish())
+        self.threaded = bool(threaded)
+        if threaded:
+            import numba
+
+            self._nthreads = numba.get_num_threads()  # thread-local in numba: hand it over
+            self._queue = queue.Queue()
+            self._thread = threading.Thread(target=self._loop, name="conformill-cutter", daemon=True)
+            self._thread.start()
+
+    # -- the caller's side ----------------------------------------------------------
+    def add(self, piece) -> None:
+        """Hand over the next piece (a :class:`conformill.patterns.pieces.Piece`)."""
+        if self._thread is None:
+            self._held.append(piece)
+            return
+        if self._error is not None:
+            self._raise()
+        self._queue.put(piece)
+
+    def finish(self):
+        """Cut what is left; returns ``(passes, pass_ids, lifts)``.
+
+        ``passes`` are tool-tip polylines ``(k, 3)``; ``lifts`` the drop-cutter lifts of
+        the CC points (mm). Raises what the worker raised.
+        """
+        if self._thread is None:
+            for piece in self._held:
+                self._take(piece)
+            self._held = []
+            self._close()
+        else:
+            self._queue.put(None)
+            self._thread.join()
+            self._thread = None
+            self._raise()
+        passes, ids, lifts = [], [], []
+        for p in self._done:
+            if not p.centres:
+                continue
+            centres = np.concatenate(p.centres)
+            # drop consecutive duplicates (a centre point path, link ends)
+            keep = np.ones(len(centres), dtype=bool)
+            keep[1:] = np.any(np.abs(np.diff(centres, axis=0)) > 1e-9, axis=1)
+            passes.append(self.cutter.tip(centres[keep]))
+            ids.append(p.path_id)
+            lifts.extend(p.lifts)
+        return passes, ids, lifts
+
+    def abort(self) -> None:
+        """Stop the worker (after an error in the caller's thread); harmless after :meth:`finish`."""
+        if self._thread is not None:
+            self._queue.put(None)
+            self._thread.join()
+            self._thread = None
+
+    def _raise(self):
+        if self._error is not None:
+            raise self._error
+
+    # -- the work ---------------------------------------------------------------------
+    def _loop(self):
+        import numba
+
+        numba.set_num_threads(self._nthreads)
+        try:
+            t0 = time.perf_counter()
+            self.cutter = self._make_cutter()  # its index, while the pattern stage starts
+            self.timings["cutter"] += time.perf_counter() - t0
+            while True:
+                piece = self._queue.get()
+                if piece is None:
+                    break
+                if self._error is None:
+                    self._take(piece)
+            if self._error is None:
+                self._close()
+        except Exception as exc:  # handed to the caller's thread by finish() / add()
+            self._error = exc
+            while self._queue.get() is not None:  # let finish() return
+                pass
+
+    def _take(self, pc):
+        t0 = time.perf_counter()
+        c = pc.curve
+        S = c.sample
+        order = slice(None, None, -1) if pc.reverse else slice(None)
+        X3 = S.xyz[order]
+        kap = S.curvature(c.t)[order]
+        idx = select_forward(X3, kap, self.e_fwd, self.max_step, e_convex=self.e_cvx)
+        # the fitted (smooth) normal: with the facet's the contact would sit exactly on
+        # the CC point, but the centre path would jitter at every edge; measured, it
+        # changes the scallop by less than 1 % (cad_like_0, h = 0.01)
+        cc, nn = X3[idx], S.n[order][idx]
+        cur = self._passes[-1]
+        if pc.kind == "path":
+            self.cc_paths.append(cc)
+            if len(cc) > 1:
+                self.fwd_steps.append(np.linalg.norm(np.diff(cc, axis=0), axis=1))
+            if cur.path_id < 0:
+                cur.path_id = pc.index
+            cur.cc.append(cc)
+            cur.nn.append(nn)
+            cur.pending += len(cc)
+        else:
+            L = float(np.linalg.norm(np.diff(X3, axis=0), axis=1).sum())
+            if L <= self.link_max:
+                cur.cc.append(cc[1:-1])
+                cur.nn.append(nn[1:-1])
+                cur.pending += len(cc) - 2
+            else:
+                self.n_retracts_link += 1
+                self.timings["forward"] += time.perf_counter() - t0
+                self._cut(cur)
+                self._done.append(cur)
+                self._passes.append(_Pass(-1))
+                return
+        self.timings["forward"] += time.perf_counter() - t0
+        if cur.pending >= self.batch:
+            self._cut(cur)
+
+    def _close(self):
+        for p in self._passes[len(self._done):]:
+            self._cut(p)
+            self._done.append(p)
+
+    def _cut(self, p: _Pass):
+        """Drop-cutter and gouge-safe moves for the pending CC points of pass ``p``."""
+        if not p.cc:
+            return
+        t0 = time.perf_counter()
+        if self.cutter is None:
+            self.cutter = self._make_cutter()
+        cc = np.concatenate(p.cc)
+        nn = np.concatenate(p.nn)
+        p.cc, p.nn, p.pending = [], [], 0
+        if len(cc):
+            centres, lift = self.cutter.cl_from_cc(cc, nn)
+            ok = np.isfinite(centres[:, 2])
+            centres = centres[ok]
+            p.lifts.append(lift[ok])
+            # no centre move cuts more than e / 2 into the part (an exact bound): half of
+            # the gouge budget e, the other half left to the mesh facets between samples.
+            # The move from the last batch's end into this batch is checked here.
+            if p.last is not None and len(centres):
+                centres = self.cutter.refine(np.vstack([p.last[None], centres]), self.e)[1:]
+            else:
+                centres = self.cutter.refine(centres, self.e)
+            if len(centres):
+                p.centres.append(centres)
+                p.last = centres[-1]
+        self.timings["cutter"] += time.perf_counter() - t0

@@ -1,0 +1,122 @@
+"""Pieces -> passes: batching and the worker thread change nothing in the program; errors
+raised in the worker reach the caller."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+import conformill.pipeline as pipeline
+from conformill.cutter import BallCutter
+from conformill.errors import PlanningError
+from conformill.mesh import synthetic
+from conformill.passes import PassBuilder, threads_can_overlap
+from conformill.patterns.pieces import Piece
+from conformill.pipeline import Job, plan
+
+R = 4.0
+
+
+@pytest.fixture(scope="module")
+def recorded():
+    """A contour plan's pieces and builder settings, recorded from the pipeline."""
+    part = synthetic.freeform_patch(spacing=2.0, jitter=0.3, seed=1)
+    seen = {}
+
+    class Recording(PassBuilder):
+        def __init__(self, make_cutter, *args, **kw):
+            super().__init__(make_cutter, *args, **kw)
+            seen["args"], seen["kw"], seen["pieces"] = args, kw, []
+            seen["make_cutter"] = make_cutter
+
+        def add(self, piece):
+            seen["pieces"].append(piece)
+            super().add(piece)
+
+    mp = pytest.MonkeyPatch()
+    mp.setattr(pipeline, "PassBuilder", Recording)
+    try:
+        res = plan(part, Job(pattern="contour", tool_radius=R, scallop=0.05, tolerance=0.01))
+    finally:
+        mp.undo()
+    return res, seen
+
+
+def _build(seen, threaded, batch, link_max=None):
+    args = list(seen["args"])
+    if link_max is not None:
+        args[4] = link_max
+    b = PassBuilder(seen["make_cutter"], *args[:5], threaded=threaded, batch=batch)
+    for pc in seen["pieces"]:
+        b.add(pc)
+    return b.finish(), b
+
+
+def test_pieces_arrive_in_machining_order(recorded):
+    res, seen = recorded
+    kinds = [p.kind for p in seen["pieces"]]
+    n = len(res.domain_paths.paths)
+    assert kinds == ["path", "link"] * (n - 1) + ["path"]
+    assert [p.index for p in seen["pieces"] if p.kind == "path"] == list(range(n))
+
+
+@pytest.mark.parametrize("batch", [1, 7, 500])
+@pytest.mark.parametrize("threaded", [False, True])
+def test_batches_and_worker_give_the_same_program(recorded, batch, threaded):
+    res, seen = recorded
+    if threaded and not threads_can_overlap():
+        pytest.skip("numba's threading layer here does not allow two threads")
+    (passes, ids, lifts), _ = _build(seen, threaded, batch)
+    assert ids == res.toolpath.pass_ids
+    assert len(passes) == len(res.toolpath.passes)
+    for a, b in zip(passes, res.toolpath.passes):
+        assert np.array_equal(a, b)
+    (_, _, whole_lifts), _ = _build(seen, False, 10**9)
+    assert np.array_equal(np.concatenate(lifts), np.concatenate(whole_lifts))
+    # every path's CC points are cut, and the inner points of every link
+    assert len(np.concatenate(lifts)) >= sum(len(c) for c in res.cc_paths)
+
+
+def test_retracts_split_passes_the_same_way_in_batches(recorded):
+    _, seen = recorded
+    (whole, ids_w, _), bw = _build(seen, False, 10**9, link_max=1e-6)
+    (parts, ids_p, _), bp = _build(seen, threads_can_overlap(), 5, link_max=1e-6)
+    assert bw.n_retracts_link == bp.n_retracts_link > 0
+    assert len(whole) == bw.n_retracts_link + 1 and ids_w == ids_p
+    for a, b in zip(whole, parts):
+        assert np.array_equal(a, b)
+
+
+def test_whole_plan_same_with_and_without_the_worker(monkeypatch):
+    part = synthetic.freeform_patch(spacing=2.0, jitter=0.3, seed=2)
+    job = Job(pattern="zigzag", tool_radius=R, scallop=0.05, tolerance=0.01)
+    a = plan(part, job)
+    monkeypatch.setattr(pipeline, "threads_can_overlap", lambda: False)
+    b = plan(part, job)
+    assert "cutter_wait" not in b.report["timings_s"]
+    assert len(a.toolpath.passes) == len(b.toolpath.passes)
+    for p, q in zip(a.toolpath.passes, b.toolpath.passes):
+        assert np.array_equal(p, q)
+
+
+def _far_piece():
+    """A path whose CC points lie 50 mm beside the mesh: the cutter refuses it."""
+    xyz = np.column_stack([np.linspace(100, 110, 20), np.zeros(20), np.zeros(20)])
+    S = SimpleNamespace(xyz=xyz, n=np.tile([0.0, 0.0, 1.0], (20, 1)), curvature=lambda t: np.zeros(20))
+    return Piece("path", SimpleNamespace(sample=S, t=None), False, 0)
+
+
+@pytest.mark.parametrize("threaded", [False, True])
+def test_cutter_error_in_the_worker_reaches_the_caller(threaded):
+    if threaded and not threads_can_overlap():
+        pytest.skip("numba's threading layer here does not allow two threads")
+    m = synthetic.plane(size=20.0, spacing=2.0)
+    b = PassBuilder(lambda: BallCutter(m.V, m.F, R), 0.01, 0.0025, 0.005, 10.0, 8.0, threaded=threaded, batch=5)
+    with pytest.raises(PlanningError, match="not within the ball's reach"):
+        for _ in range(50):  # more pieces after the failure: add() raises early or finish() does
+            b.add(_far_piece())
+        b.finish()
+    b.abort()  # returns at once: the worker has stopped
+    assert b._thread is None

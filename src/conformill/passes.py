@@ -22,6 +22,7 @@ import threading
 import time
 
 import numpy as np
+from numba import njit, prange
 
 from conformill.patterns.forward import select_forward
 
@@ -37,15 +38,25 @@ def threads_can_overlap() -> bool:
     """Whether numba's threading layer accepts parallel calls from two threads at once.
 
     ``tbb`` and ``omp`` do; ``workqueue`` aborts the process on concurrent use. False also
-    when one thread is asked for (``--threads 1``) or no parallel kernel has run yet.
+    when one thread is asked for (``--threads 1``).
     """
     import numba
 
+    if numba.get_num_threads() < 2:
+        return False
     try:
         layer = numba.threading_layer()
-    except ValueError:
-        return False
-    return layer in ("tbb", "omp") and numba.get_num_threads() > 1
+    except ValueError:  # no parallel kernel has run yet: run one, so that numba picks its layer
+        _touch(np.zeros(2))
+        layer = numba.threading_layer()
+    return layer in ("tbb", "omp")
+
+
+@njit(cache=True, parallel=True)
+def _touch(x):
+    for i in prange(x.shape[0]):
+        x[i] += 1.0
+    return x
 
 
 class _Pass:
@@ -145,6 +156,13 @@ class PassBuilder:
             ids.append(p.path_id)
             lifts.extend(p.lifts)
         return passes, ids, lifts
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.abort()
+        return False
 
     def abort(self) -> None:
         """Stop the worker (after an error in the caller's thread); harmless after :meth:`finish`."""

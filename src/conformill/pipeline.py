@@ -249,39 +249,7 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
     if safe_z < zmax + 0.5:
         raise PlanningError(f"safe-z {safe_z:.4f} is not above the part top {zmax:.4f} by 0.5 mm")
 
-    say("parameterize", 0.0)
-    with timer("parameterize"):
-        boundary = "rectangle" if job.pattern == "zigzag" else "circle"
-        param = parameterize(mesh, boundary=boundary, weights=job.weights, corners=job.corners)
-    with timer("quality"):
-        q = quality(mesh.V, mesh.F, param.uv)
-    if q.flipped:
-        raise PlanningError(f"the parameterization has {q.flipped} flipped faces; try --weights mean_value")
-
-    with timer("frame"):
-        surface = DomainSurface(mesh.V, mesh.F, param.uv)
-
-    with timer("reachability"):
-        from conformill.geometry.differential import interpolate  # noqa: F401  (frame is per vertex)
-
-        fr = surface.frame
-        kmax_v = principal_concave(np.column_stack([fr.E, fr.F, fr.G]), np.column_stack([fr.L, fr.M, fr.N]))
-        unreach_v = kmax_v >= 1.0 / r
-        unreach_f = unreach_v[mesh.F].sum(1) >= 2
-        unreach_share = float(fa[unreach_f].sum() / total_area)
-        regions = _regions(unreach_f, mesh, fa)
-        if unreach_share > 0:
-            log.warning("%.2f%% of the surface is concave with a radius at or below the tool radius %.3g mm: "
-                        "the ball cannot follow it there (largest region near %s)", 100 * unreach_share, r,
-                        np.round(regions[0]["centre"], 2).tolist() if regions else "?")
-
-    # dense sampling: about one mesh edge (the fitted fields are linear inside a face), never
-    # coarser than a third of the flat side step
-    E_ = np.linalg.norm(mesh.V[mesh.F[:, 1]] - mesh.V[mesh.F[:, 0]], axis=1)
     flat_ls = float(side_interval(h, r, np.zeros(1))[0][0])
-    seg_len = min(float(np.median(E_)), flat_ls / 3.0)
-    sigma = np.median(q.sigma[np.isfinite(q.sigma) & (q.sigma > 0)])
-    delta = seg_len / sigma
     # Forward chord tolerance. Over a concave stretch the straight move rides above the
     # surface by up to the chord deviation, and that material adds to the scallop: with
     # e close to h the scallop reached about 1.4 h (measured, zigzag, h = e = 0.01). So the
@@ -292,15 +260,48 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
     # Where the path is convex along its direction the chord dips into the part instead:
     # only the gouge budget bounds it, and the cutter stage checks every move against e/2.
     e_cvx = max(e_fwd, 0.5 * e)
-    planner = Planner(surface, params, seg_len, concave_cap=flat_ls if job.concave_steps == "flat" else None,
-                      rise_tol=e_fwd, max_step=job.max_step)
-
     link_max = job.link_max if job.link_max is not None else max(2.0 * r, 4.0 * flat_ls)
     # forward steps and the cutter run on each piece as the pattern stage finishes it,
-    # in a worker thread where numba allows (passes.py); the program is the same either way
+    # in a worker thread where numba allows (passes.py; it builds the cutter's index while
+    # the map is solved); the program is the same either way
     builder = PassBuilder(lambda: BallCutter(mesh.V, mesh.F, r), e, e_fwd, e_cvx, job.max_step, link_max,
                           threaded=threads_can_overlap())
-    try:
+    with builder:  # stops the worker if a stage fails
+        say("parameterize", 0.0)
+        with timer("parameterize"):
+            boundary = "rectangle" if job.pattern == "zigzag" else "circle"
+            param = parameterize(mesh, boundary=boundary, weights=job.weights, corners=job.corners)
+        with timer("quality"):
+            q = quality(mesh.V, mesh.F, param.uv)
+        if q.flipped:
+            raise PlanningError(f"the parameterization has {q.flipped} flipped faces; try --weights mean_value")
+
+        with timer("frame"):
+            surface = DomainSurface(mesh.V, mesh.F, param.uv)
+
+        with timer("reachability"):
+            from conformill.geometry.differential import interpolate  # noqa: F401  (frame is per vertex)
+
+            fr = surface.frame
+            kmax_v = principal_concave(np.column_stack([fr.E, fr.F, fr.G]), np.column_stack([fr.L, fr.M, fr.N]))
+            unreach_v = kmax_v >= 1.0 / r
+            unreach_f = unreach_v[mesh.F].sum(1) >= 2
+            unreach_share = float(fa[unreach_f].sum() / total_area)
+            regions = _regions(unreach_f, mesh, fa)
+            if unreach_share > 0:
+                log.warning("%.2f%% of the surface is concave with a radius at or below the tool radius %.3g mm: "
+                            "the ball cannot follow it there (largest region near %s)", 100 * unreach_share, r,
+                            np.round(regions[0]["centre"], 2).tolist() if regions else "?")
+
+        # dense sampling: about one mesh edge (the fitted fields are linear inside a face), never
+        # coarser than a third of the flat side step
+        E_ = np.linalg.norm(mesh.V[mesh.F[:, 1]] - mesh.V[mesh.F[:, 0]], axis=1)
+        seg_len = min(float(np.median(E_)), flat_ls / 3.0)
+        sigma = np.median(q.sigma[np.isfinite(q.sigma) & (q.sigma > 0)])
+        delta = seg_len / sigma
+        planner = Planner(surface, params, seg_len, concave_cap=flat_ls if job.concave_steps == "flat" else None,
+                          rise_tol=e_fwd, max_step=job.max_step)
+
         with timer("pattern"):
             prog = (lambda f: say("pattern", f))
             adaptive = job.spacing in ("adaptive", "local")
@@ -322,14 +323,12 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
         t_wait = time.perf_counter()
         passes, pass_ids, lifts = builder.finish()
         t_wait = time.perf_counter() - t_wait
-    finally:
-        builder.abort()
-    # forward and cutter: busy time (beside the pattern stage when threaded; then
-    # cutter_wait is how long the plan waited for the cutter after the last path)
-    timer.t.update(builder.timings)
-    if builder.threaded:
-        timer.t["cutter_wait"] = t_wait
-    cc_paths, fwd_steps, n_retracts_link = builder.cc_paths, builder.fwd_steps, builder.n_retracts_link
+        # forward and cutter: busy time (beside the pattern stage when threaded; then
+        # cutter_wait is how long the plan waited for the cutter after the last path)
+        timer.t.update(builder.timings)
+        if builder.threaded:
+            timer.t["cutter_wait"] = t_wait
+        cc_paths, fwd_steps, n_retracts_link = builder.cc_paths, builder.fwd_steps, builder.n_retracts_link
     toolpath = ToolPath(passes=passes, safe_z=safe_z, pass_ids=pass_ids)
 
     # -- figures -----------------------------------------------------------------

@@ -3,6 +3,7 @@ raised in the worker reach the caller."""
 
 from __future__ import annotations
 
+import time
 from types import SimpleNamespace
 
 import numpy as np
@@ -120,3 +121,29 @@ def test_cutter_error_in_the_worker_reaches_the_caller(threaded):
         b.finish()
     b.abort()  # returns at once: the worker has stopped
     assert b._thread is None
+
+
+def test_abort_drops_the_queued_pieces(recorded):
+    """A failure in the caller's thread stops the worker without cutting the backlog."""
+    _, seen = recorded
+    if not threads_can_overlap():
+        pytest.skip("numba's threading layer here does not allow two threads")
+    started, holder = [], []
+
+    def late_cutter():  # the worker starts only once the caller has aborted
+        started.append(1)
+        for _ in range(1000):
+            if holder and holder[0]._cancel:
+                break
+            time.sleep(0.01)
+        return seen["make_cutter"]()
+
+    args = list(seen["args"])[:5]
+    with pytest.raises(RuntimeError, match="pattern failed"):
+        with PassBuilder(late_cutter, *args, threaded=True, batch=1) as b:
+            holder.append(b)
+            for pc in seen["pieces"]:
+                b.add(pc)
+            raise RuntimeError("pattern failed")
+    assert b._thread is None and started
+    assert b.cc_paths == []  # nothing of the backlog was cut

@@ -107,6 +107,7 @@ class PassBuilder:
         self._passes = [_Pass(-1)]
         self._done = []  # finished passes
         self._error = None
+        self._cancel = False
         self._thread = None
         self._held = []  # pieces handed over, when not threaded (cut in finish())
         self.threaded = bool(threaded)
@@ -167,6 +168,7 @@ class PassBuilder:
     def abort(self) -> None:
         """Stop the worker (after an error in the caller's thread); harmless after :meth:`finish`."""
         if self._thread is not None:
+            self._cancel = True  # the pieces still queued are dropped, not cut
             self._queue.put(None)
             self._thread.join()
             self._thread = None
@@ -188,9 +190,9 @@ class PassBuilder:
                 piece = self._queue.get()
                 if piece is None:
                     break
-                if self._error is None:
+                if self._error is None and not self._cancel:
                     self._take(piece)
-            if self._error is None:
+            if self._error is None and not self._cancel:
                 self._close()
         except Exception as exc:  # handed to the caller's thread by finish() / add()
             self._error = exc

@@ -147,3 +147,31 @@ def test_abort_drops_the_queued_pieces(recorded):
             raise RuntimeError("pattern failed")
     assert b._thread is None and started
     assert b.cc_paths == []  # nothing of the backlog was cut
+
+
+@pytest.mark.parametrize("threaded", [False, True])
+def test_cutter_error_at_the_last_batch_reaches_the_caller(threaded):
+    """With the default batch the whole (small) pass is cut after the last piece, in
+    finish(): its error must be raised there, not leave finish() waiting."""
+    if threaded and not threads_can_overlap():
+        pytest.skip("numba's threading layer here does not allow two threads")
+    import threading
+
+    m = synthetic.plane(size=20.0, spacing=2.0)
+    b = PassBuilder(lambda: BallCutter(m.V, m.F, R), 0.01, 0.0025, 0.005, 10.0, 8.0, threaded=threaded)
+    b.add(_far_piece())
+    caught = []
+
+    def run():
+        try:
+            b.finish()
+        except PlanningError as exc:
+            caught.append(exc)
+
+    t = threading.Thread(target=run, daemon=True)
+    t.start()
+    t.join(60)
+    assert not t.is_alive(), "finish() did not return"
+    assert caught and "not within the ball's reach" in str(caught[0])
+    b.abort()
+

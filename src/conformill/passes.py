@@ -125,8 +125,7 @@ class PassBuilder:
         if self._thread is None:
             self._held.append(piece)
             return
-        if self._error is not None:
-            self._raise()
+        self._raise()
         self._queue.put(piece)
 
     def finish(self):
@@ -179,25 +178,28 @@ class PassBuilder:
 
     # -- the work ---------------------------------------------------------------------
     def _loop(self):
-        import numba
-
-        numba.set_num_threads(self._nthreads)
+        ended = False  # the end marker was taken from the queue
         try:
-            t0 = time.perf_counter()
-            self.cutter = self._make_cutter()  # its index, while the pattern stage starts
-            self.timings["cutter"] += time.perf_counter() - t0
+            import numba
+
+            numba.set_num_threads(self._nthreads)
+            if not self._cancel:
+                t0 = time.perf_counter()
+                self.cutter = self._make_cutter()  # its index, while the map is solved
+                self.timings["cutter"] += time.perf_counter() - t0
             while True:
                 piece = self._queue.get()
                 if piece is None:
+                    ended = True
                     break
-                if self._error is None and not self._cancel:
+                if not self._cancel:
                     self._take(piece)
-            if self._error is None and not self._cancel:
+            if not self._cancel:
                 self._close()
-        except Exception as exc:  # handed to the caller's thread by finish() / add()
+        except BaseException as exc:  # handed to the caller's thread by finish() / add()
             self._error = exc
-            while self._queue.get() is not None:  # let finish() return
-                pass
+            while not ended:  # let finish() / abort() return: take the end marker
+                ended = self._queue.get() is None
 
     def _take(self, pc):
         t0 = time.perf_counter()

@@ -32,7 +32,8 @@ def add_arguments(p) -> None:
                         "and also dent locally at narrow dips of the step (local: zigzag and contour 18-28%% "
                         "shorter on scans, more material at scan creases)")
     p.add_argument("--max-step", type=float, default=10.0, metavar="L", help="longest forward step, mm (10)")
-    p.add_argument("--threads", type=int, default=None, metavar="N", help="threads for parallel stages (all)")
+    p.add_argument("--threads", type=int, default=None, metavar="N",
+                   help="threads for parallel stages (default all; with 1 the cutter runs after the pattern stage)")
     p.add_argument("-o", "--output", required=True, metavar="OUT.nc")
     p.add_argument("--report", default=None, metavar="OUT.json")
     p.add_argument("--plot", default=None, metavar="OUT.png")

@@ -144,6 +144,10 @@ def test_abort_drops_the_queued_pieces(recorded):
             holder.append(b)
             for pc in seen["pieces"]:
                 b.add(pc)
+            for _ in range(1000):  # the worker is building the cutter (until the abort)
+                if started:
+                    break
+                time.sleep(0.01)
             raise RuntimeError("pattern failed")
     assert b._thread is None and started
     assert b.cc_paths == []  # nothing of the backlog was cut

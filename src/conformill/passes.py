@@ -228,7 +228,7 @@ class PassBuilder:
             if L <= self.link_max:
                 cur.cc.append(cc[1:-1])
                 cur.nn.append(nn[1:-1])
-                cur.pending += len(cc) - 2
+                cur.pending += len(cur.cc[-1])
             else:
                 self.n_retracts_link += 1
                 self.timings["forward"] += time.perf_counter() - t0

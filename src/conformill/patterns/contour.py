@@ -8,7 +8,7 @@ is the boundary. Consecutive rings are linked by a short radial move at ``theta 
 from __future__ import annotations
 
 from conformill.patterns.domains import Rings, Segment
-from conformill.patterns.pieces import Piece, domain_paths
+from conformill.patterns.pieces import PieceStream, domain_paths
 from conformill.patterns.warp import build_warp
 
 
@@ -42,22 +42,11 @@ def plan_contour(planner, poly, delta: float, progress=None, adaptive: bool = Tr
     domain : conformill.types.DomainPaths
     pieces : list of Piece
     """
-    pieces, rings = [], []
+    def link(i, a, b):
+        return planner.evaluate(Segment(a.sample.uv[-1], b.sample.uv[0], delta, clip=poly.clip), 0.0)
 
-    def add(piece):
-        pieces.append(piece)
-        if emit is not None:
-            emit(piece)
-
-    def on_curve(c):
-        rings.append(c)
-        if len(rings) > 1:
-            i, a = len(rings) - 2, rings[-2]
-            add(Piece("path", a, False, i))
-            link = Segment(a.sample.uv[-1], c.sample.uv[0], delta, clip=poly.clip)
-            add(Piece("link", planner.evaluate(link, 0.0), False, i))
-
+    stream = PieceStream(emit, link)
     fam, (curves, realised, predicted, shrinks) = plan_rings(planner, poly, delta, progress, adaptive, local,
-                                                             on_curve=on_curve)
-    add(Piece("path", curves[-1], False, len(curves) - 1))
+                                                             on_curve=stream.on_curve)
+    pieces = stream.close()
     return domain_paths("contour", curves, realised, predicted, shrinks, closed=True), pieces

@@ -23,6 +23,43 @@ class Piece:
     index: int = -1
 
 
+class PieceStream:
+    """Pieces in machining order, each handed to ``emit`` as soon as it is final.
+
+    For a family of paths linked one to the next (rings, rows), :meth:`on_curve` takes each
+    curve as the planner finishes it: path ``i`` is final once path ``i + 1`` exists, so it
+    is added then, with the link ``link(i, a, b)`` between them; :meth:`close` adds the
+    last path. ``reverse(i)`` says whether path ``i`` is walked backwards.
+    """
+
+    def __init__(self, emit=None, link=None, reverse=None):
+        self.pieces = []
+        self._emit = emit
+        self._link = link
+        self._reverse = reverse or (lambda i: False)
+        self._curves = []
+
+    def add(self, piece: Piece) -> None:
+        self.pieces.append(piece)
+        if self._emit is not None:
+            self._emit(piece)
+
+    def _path(self, i: int) -> None:
+        self.add(Piece("path", self._curves[i], self._reverse(i), i))
+
+    def on_curve(self, curve) -> None:
+        self._curves.append(curve)
+        i = len(self._curves) - 2
+        if i >= 0:
+            self._path(i)
+            self.add(Piece("link", self._link(i, self._curves[i], curve), False, i))
+
+    def close(self) -> list:
+        """Add the last path; returns all pieces."""
+        self._path(len(self._curves) - 1)
+        return self.pieces
+
+
 def domain_paths(pattern: str, curves, realised, predicted, shrinks: int, closed: bool) -> DomainPaths:
     """Package planned curves with their side-interval figures for the report."""
     out = []

@@ -26,7 +26,7 @@ import numpy as np
 from conformill.errors import PlanningError
 from conformill.patterns.domains import Rings, SpiralTurn
 from conformill.patterns.family import pair_distances
-from conformill.patterns.pieces import Piece, domain_paths
+from conformill.patterns.pieces import Piece, PieceStream, domain_paths
 from conformill.patterns.warp import build_warp
 
 log = logging.getLogger(__name__)
@@ -74,6 +74,7 @@ def plan_spiral(planner, poly, delta: float, progress=None, adaptive: bool = Tru
             realised[-1], _ = pair_distances(turns[-2], turns[-1])
         return a0 + D, turns[-1]
 
+    stream = PieceStream(emit)
     centre = planner.evaluate(rings, 0.0)
     D = min(float(np.min(planner.domain_steps(centre))), s_end)
     levels = [0.0, D]
@@ -147,15 +148,12 @@ def plan_spiral(planner, poly, delta: float, progress=None, adaptive: bool = Tru
         step = (1.0 - cur.tau) * D + cur.tau * E
         predicted.append(cur.sample.area_factor() / cur.sample.length(cur.t) * cur.rate * step)
         turns.append(nxt)
-        if emit is not None:
-            emit(Piece("path", turns[-2], False, len(turns) - 2))
+        stream.add(Piece("path", turns[-2], False, len(turns) - 2))
         if a1 >= s_end:
             done = True
         else:
             levels.append(min(a1 + E, s_end))
         if progress is not None:
             progress(min(levels[-1] / s_end, 1.0))
-    if emit is not None:
-        emit(Piece("path", turns[-1], False, len(turns) - 1))
-    pieces = [Piece("path", t, False, i) for i, t in enumerate(turns)]
-    return domain_paths("spiral", turns, realised, predicted, shrinks, closed=False), pieces
+    stream.add(Piece("path", turns[-1], False, len(turns) - 1))
+    return domain_paths("spiral", turns, realised, predicted, shrinks, closed=False), stream.pieces

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from conformill.patterns.domains import IsoU, Segment
-from conformill.patterns.pieces import Piece, domain_paths
+from conformill.patterns.pieces import PieceStream, domain_paths
 from conformill.patterns.warp import build_warp
 
 
@@ -45,23 +45,11 @@ def plan_zigzag(planner, X: float, Y: float, delta: float, progress=None, adapti
         fam = IsoU(Y, delta, warp=build_warp(planner, fam, 0.0, lambda tau: np.full(np.shape(tau), float(X))))
         s_end = 1.0
     run = planner.run_local if adaptive and local else planner.run
-    pieces, rows = [], []
+    def link(i, a, b):
+        end = 0 if i % 2 == 1 else -1  # along the side v = 0 or v = Y
+        return planner.evaluate(Segment(a.sample.uv[end], b.sample.uv[end], delta), 0.0)
 
-    def add(piece):
-        pieces.append(piece)
-        if emit is not None:
-            emit(piece)
-
-    def on_curve(c):
-        rows.append(c)
-        if len(rows) > 1:
-            i, a = len(rows) - 2, rows[-2]
-            rev = i % 2 == 1
-            add(Piece("path", a, rev, i))
-            end = 0 if rev else -1  # along the side v = 0 or v = Y
-            link = Segment(a.sample.uv[end], c.sample.uv[end], delta)
-            add(Piece("link", planner.evaluate(link, 0.0), False, i))
-
-    curves, realised, predicted, shrinks = run(fam, 0.0, s_end, progress=progress, on_curve=on_curve)
-    add(Piece("path", curves[-1], (len(curves) - 1) % 2 == 1, len(curves) - 1))
+    stream = PieceStream(emit, link, reverse=lambda i: i % 2 == 1)
+    curves, realised, predicted, shrinks = run(fam, 0.0, s_end, progress=progress, on_curve=stream.on_curve)
+    pieces = stream.close()
     return domain_paths("zigzag", curves, realised, predicted, shrinks, closed=False), pieces

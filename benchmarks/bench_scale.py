@@ -10,7 +10,11 @@ interleaved so that background load hits both alike. The stage timings come from
 plan's JSON report.
 
     python benchmarks/bench_scale.py [MESH] [--scale 1400] [--patterns zigzag contour spiral]
-        [--h 0.01] [--repeat 1] [--spacing adaptive|paper|local]
+        [--h 0.01] [--repeat 1] [--spacing adaptive|paper|local] [--subdivide K]
+
+``--subdivide K`` first splits every triangle into four K times (``trimesh.remesh.subdivide``,
+midpoints: the same surface with 4^K times the faces; the 620k mesh is igea's 155k scan
+split once) and runs on that, written to a temporary PLY.
 """
 
 from __future__ import annotations
@@ -38,12 +42,15 @@ def main(argv=None) -> int:
     ap.add_argument("--radius", type=float, default=4.0)
     ap.add_argument("--repeat", type=int, default=1)
     ap.add_argument("--spacing", default="adaptive", choices=["adaptive", "paper", "local"])
+    ap.add_argument("--subdivide", type=int, default=0, metavar="K", help="split every triangle into four K times")
     args = ap.parse_args(argv)
-    igl_cmd = [sys.executable, "-c", IGL_CHILD, args.mesh, str(args.scale)]
-    print(f"mesh {args.mesh} x{args.scale:g}; r = {args.radius:g}, h = {args.h:g}, e = {args.tolerance:g}; "
-          f"{os.cpu_count()} CPUs")
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
+        if args.subdivide > 0:
+            args.mesh = _subdivided(args.mesh, args.subdivide, Path(tmp) / "subdivided.ply")
+        igl_cmd = [sys.executable, "-c", IGL_CHILD, args.mesh, str(args.scale)]
+        print(f"mesh {args.mesh} x{args.scale:g}; r = {args.radius:g}, h = {args.h:g}, e = {args.tolerance:g}; "
+              f"{os.cpu_count()} CPUs")
         for pat in args.patterns:
             nc, rep = str(Path(tmp) / f"{pat}.nc"), str(Path(tmp) / f"{pat}.json")
             cmd = [sys.executable, "-m", "conformill", "plan", args.mesh, "--scale", str(args.scale),
@@ -68,6 +75,19 @@ def main(argv=None) -> int:
         print(f"| {pat} | {w:.1f} | {rss:.0f} | {h_igl:.2f} | {w / h_igl:.1f} | {r['program']['cut_points']} | "
               f"{r['program']['feed_length_mm'] / 1000:.1f} |")
     return 0
+
+
+def _subdivided(mesh: str, k: int, out: Path) -> str:
+    """``mesh`` with every triangle split into four ``k`` times, written to ``out``."""
+    import trimesh
+
+    m = trimesh.load(mesh, process=False)
+    V, F = m.vertices, m.faces
+    for _ in range(k):
+        V, F = trimesh.remesh.subdivide(V, F)
+    trimesh.Trimesh(V, F, process=False).export(out)
+    print(f"subdivided {k}x: {len(F)} faces, {len(V)} vertices")
+    return str(out)
 
 
 if __name__ == "__main__":

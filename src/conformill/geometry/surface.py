@@ -33,10 +33,12 @@ class SurfaceSample:
     def merged(self, other: "SurfaceSample", new: np.ndarray) -> "SurfaceSample":
         """This sample and ``other`` interleaved: ``other``'s points at the True entries of
         the mask ``new``, this one's at the others, each in its own order."""
+        at_old, at_new = np.flatnonzero(~new), np.flatnonzero(new)  # once for the seven fields
+
         def mix(a, b):
             out = np.empty((len(new),) + a.shape[1:], dtype=a.dtype)
-            out[~new] = a
-            out[new] = b
+            out[at_old] = a
+            out[at_new] = b
             return out
         return SurfaceSample(*(mix(getattr(self, f), getattr(other, f))
                                for f in ("uv", "face", "bary", "xyz", "n", "I", "II")))

@@ -140,3 +140,23 @@ def test_concave_regions_are_components_sorted_by_area():
         np.testing.assert_allclose(g["centre"], c, atol=1e-9)
     np.testing.assert_allclose(got[0]["centre"][:2], [-10, 0], atol=0.5)
     assert _regions(np.zeros(len(m.F), bool), m, fa) == []
+
+
+@pytest.mark.parametrize("mode,flip", [("none", False), ("none", True), ("auto", False), ("auto", True)])
+def test_orient_mesh_normals_are_those_of_the_returned_mesh(mode, flip):
+    """The face normals orient_mesh hands on equal face_normals of the mesh it returns,
+    bit for bit (re-wound faces: negated; turned part: recomputed), and face +Z on average."""
+    from conformill.pipeline import face_normals, orient_mesh
+    from conformill.types import Mesh
+
+    m = synthetic.cylinder_patch(R=30.0, length=40.0, half_angle=0.6, spacing=2.0)
+    V = m.V @ np.array([[1.0, 0, 0], [0, np.cos(0.4), -np.sin(0.4)], [0, np.sin(0.4), np.cos(0.4)]]).T
+    F = m.F[:, [0, 2, 1]] if flip else m.F
+    out, info, n, a = orient_mesh(Mesh(V=V, F=F), mode, normals=True)
+    n2, a2 = face_normals(out.V, out.F)
+    assert np.array_equal(n, n2) and np.array_equal(a, a2)
+    assert info["rewound"] == flip
+    mean = (n * a[:, None]).sum(0)
+    assert mean[2] > 0
+    if mode == "auto":
+        np.testing.assert_allclose(mean / np.linalg.norm(mean), [0, 0, 1], atol=1e-12)

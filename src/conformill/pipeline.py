@@ -126,7 +126,7 @@ def face_normals(V: np.ndarray, F: np.ndarray):
     return c / np.maximum(a, 1e-300)[:, None], 0.5 * a
 
 
-def orient_mesh(mesh: Mesh, mode: str):
+def orient_mesh(mesh: Mesh, mode: str, normals: bool = False):
     """Make the tool side +Z.
 
     Faces wound so that the mean normal points down are re-wound (the tool always comes
@@ -137,6 +137,8 @@ def orient_mesh(mesh: Mesh, mode: str):
     -------
     mesh : Mesh
     info : dict
+    n, a : (m, 3), (m,) float64
+        Only with ``normals``: :func:`face_normals` of the returned mesh.
     """
     V, F = mesh.V, mesh.F
     info = {"rewound": False, "rotated_deg": 0.0}
@@ -144,6 +146,7 @@ def orient_mesh(mesh: Mesh, mode: str):
     m = (n * a[:, None]).sum(0)
     if m[2] < 0:
         F = F[:, [0, 2, 1]]
+        n = -n  # exactly what face_normals gives for the re-wound faces
         m = -m
         info["rewound"] = True
         log.warning("faces were wound with normals pointing down; re-wound so the tool side is +Z")
@@ -159,7 +162,10 @@ def orient_mesh(mesh: Mesh, mode: str):
             ctr = 0.5 * (V.min(0) + V.max(0))
             V = (V - ctr) @ Rm.T + ctr
             info["rotated_deg"] = float(np.degrees(np.arctan2(s, c)))
-    return Mesh(V=V, F=F, name=mesh.name), info
+            if normals:
+                n, a = face_normals(V, F)
+    out = Mesh(V=V, F=F, name=mesh.name)
+    return (out, info, n, a) if normals else (out, info)
 
 
 def principal_concave(sample_I: np.ndarray, sample_II: np.ndarray) -> np.ndarray:
@@ -235,8 +241,7 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
     say = progress or (lambda stage, frac: None)
 
     with timer("orient"):
-        mesh, orient_info = orient_mesh(mesh, job.orient)
-        fn, fa = face_normals(mesh.V, mesh.F)
+        mesh, orient_info, fn, fa = orient_mesh(mesh, job.orient, normals=True)
         total_area = float(fa.sum())
         under = fn[:, 2] < 0.0
         undercut_share = float(fa[under].sum() / total_area)

@@ -107,3 +107,21 @@ def test_curve_distance_matches_kdtree_reference_and_never_underestimates():
         got = curve_distance(P, Q, closed)
         assert np.all(got >= ref - 1e-12)
         assert np.allclose(got, ref, atol=1e-9)
+
+
+@pytest.mark.parametrize("q", [2, 3, 5])
+def test_curve_distance_on_a_closed_curve_shorter_than_the_window(q):
+    """Closed polylines of 2-5 vertices: the walk's window (3 either side) wraps more than
+    once round them, and the distance is the exact one to the nearest segment."""
+    rng = np.random.default_rng(q)
+    Q = rng.normal(size=(q, 3))
+    P = rng.normal(size=(40, 3)) * 2.0
+    segs = [(Q[i], Q[(i + 1) % q]) for i in range(q)]
+
+    def seg_dist(p, a, b):
+        ab = b - a
+        t = np.clip((p - a) @ ab / max(ab @ ab, 1e-300), 0.0, 1.0)
+        return np.linalg.norm(p - (a + t * ab))
+
+    want = np.array([min(seg_dist(p, a, b) for a, b in segs) for p in P])
+    np.testing.assert_allclose(curve_distance(P, Q, closed=True), want, rtol=0, atol=1e-12)

@@ -125,3 +125,21 @@ def test_curve_distance_on_a_closed_curve_shorter_than_the_window(q):
 
     want = np.array([min(seg_dist(p, a, b) for a, b in segs) for p in P])
     np.testing.assert_allclose(curve_distance(P, Q, closed=True), want, rtol=0, atol=1e-12)
+
+
+def test_exact_distance_by_scan_equals_the_kdtree_reference():
+    """For a few points, the exact distance scans the curve for the nearest vertex instead
+    of building a k-d tree; the result is the reference's bit for bit (open curves, the
+    planner's use), and the vertex is the nearest one."""
+    from conformill.patterns.family import _around_vertex, _nearest_vertex
+
+    rng = np.random.default_rng(11)
+    for _ in range(50):
+        q, k = int(rng.integers(1, 300)), int(rng.integers(1, 40))
+        t = np.sort(rng.random(q)) * 2 * np.pi
+        Q = np.column_stack([30 * np.cos(t), 30 * np.sin(t), 2 * np.sin(3 * t)])
+        P = rng.normal(scale=35.0, size=(k, 3))
+        j = _nearest_vertex(P, Q)
+        d2 = ((P[:, None, :] - Q[None, :, :]) ** 2).sum(-1)
+        np.testing.assert_allclose(d2[np.arange(k), j], d2.min(axis=1), rtol=1e-12)
+        assert np.array_equal(_around_vertex(P, Q, j, False), point_polyline_distance(P, Q, False))

@@ -144,6 +144,14 @@ def point_polyline_distance(P: np.ndarray, Q: np.ndarray, closed: bool = False, 
     if len(Q) == 1:
         return np.linalg.norm(P - Q[0], axis=1)
     _, j = (cKDTree(Q) if tree is None else tree).query(P)
+    return _around_vertex(P, Q, j, closed)
+
+
+def _around_vertex(P, Q, j, closed):
+    """Distance from each point of ``P`` to the two segments of ``Q`` at its vertex ``j``
+    (the vertex itself included)."""
+    if len(Q) == 1:
+        return np.linalg.norm(P - Q[0], axis=1)
     best = np.linalg.norm(P - Q[j], axis=1)
     q = len(Q)
     for lo in (j - 1, j):
@@ -178,17 +186,50 @@ def curve_distance(P: np.ndarray, Q: np.ndarray, closed: bool = False, window: i
     return _walk_distance(P, Q, bool(closed), int(window))
 
 
+@njit(cache=True, nogil=True)
+def _nearest_vertex(P, Q):
+    """Index of the vertex of ``Q`` nearest to each point of ``P`` (the first of equals):
+    a full scan, for a few points, where building a k-d tree costs more."""
+    k, q = P.shape[0], Q.shape[0]
+    out = np.empty(k, dtype=np.int64)
+    for i in range(k):
+        px, py, pz = P[i, 0], P[i, 1], P[i, 2]
+        j = 0
+        bd = np.inf
+        for m in range(q):
+            dx, dy, dz = px - Q[m, 0], py - Q[m, 1], pz - Q[m, 2]
+            dd = dx * dx + dy * dy + dz * dz
+            if dd < bd:
+                bd, j = dd, m
+        out[i] = j
+    return out
+
+
+#: Below this many point-vertex pairs the exact distance scans an open curve instead of
+#: building a k-d tree of it (about 2 ms of scanning).
+_SCAN_PAIRS = 2_000_000
+
+
 def _exact_where_over(d: np.ndarray, limit: np.ndarray, P: np.ndarray, b, closed: bool) -> np.ndarray:
     """``d`` with the entries above ``limit`` recomputed exactly against curve ``b``
     (k-d tree of its samples, built once per curve: a curve is measured against its
-    neighbours on both sides and again after every shrink of the step)."""
+    neighbours on both sides and again after every shrink of the step; for a few
+    entries, a scan of the curve)."""
     over = np.flatnonzero(d > limit * (1.0 + 1e-9))
     if over.size == 0:
         return d
-    if b.tree is None:
-        b.tree = cKDTree(b.sample.xyz)
     d = d.copy()
-    d[over] = point_polyline_distance(P[over], b.sample.xyz, closed, tree=b.tree)
+    Q = b.sample.xyz
+    Po = P[over]
+    # (not on closed curves: their first and last samples are the same point up to
+    # rounding, and the scan and the tree may then pick different ones of the two)
+    if b.tree is None and not closed and over.size * len(Q) <= _SCAN_PAIRS:
+        j = _nearest_vertex(np.ascontiguousarray(Po, dtype=np.float64), np.ascontiguousarray(Q, dtype=np.float64))
+    else:
+        if b.tree is None:
+            b.tree = cKDTree(Q)
+        j = b.tree.query(Po)[1]
+    d[over] = _around_vertex(Po, np.asarray(Q), j, closed)
     return d
 
 

@@ -256,18 +256,15 @@ class PassBuilder:
         nn = np.concatenate(p.nn)
         p.cc, p.nn, p.pending = [], [], 0
         if len(cc):
-            centres, lift = self.cutter.cl_from_cc(cc, nn)
-            ok = np.isfinite(centres[:, 2])
-            centres = centres[ok]
-            p.lifts.append(lift[ok])
+            centres, lift = self.cutter.cl_from_cc(cc, nn)  # finite, or it raises
+            p.lifts.append(lift)
             # no centre move cuts more than e / 2 into the part (an exact bound): half of
             # the gouge budget e, the other half left to the mesh facets between samples.
             # The move from the last batch's end into this batch is checked here.
-            if p.last is not None and len(centres):
+            if p.last is not None:
                 centres = self.cutter.refine(np.vstack([p.last[None], centres]), self.e)[1:]
             else:
                 centres = self.cutter.refine(centres, self.e)
-            if len(centres):
-                p.centres.append(centres)
-                p.last = centres[-1]
+            p.centres.append(centres)
+            p.last = centres[-1]
         self.timings["cutter"] += time.perf_counter() - t0

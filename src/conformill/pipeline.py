@@ -313,17 +313,17 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
             local = job.spacing == "local"
             if job.pattern == "zigzag":
                 X, Y = param.domain
-                domain, _ = plan_zigzag(planner, X, Y, delta, progress=prog, adaptive=adaptive, local=local,
-                                             emit=builder.add)
+                domain = plan_zigzag(planner, X, Y, delta, progress=prog, adaptive=adaptive, local=local,
+                                     emit=builder.add)
             else:
                 uvb = param.uv[param.boundary]
                 poly = BoundaryPolygon(uvb)
                 if job.pattern == "contour":
-                    domain, _ = plan_contour(planner, poly, delta, progress=prog, adaptive=adaptive,
-                                                  local=local, emit=builder.add)
+                    domain = plan_contour(planner, poly, delta, progress=prog, adaptive=adaptive,
+                                          local=local, emit=builder.add)
                 else:
-                    domain, _ = plan_spiral(planner, poly, delta, progress=prog, adaptive=adaptive,
-                                                 emit=builder.add)
+                    domain = plan_spiral(planner, poly, delta, progress=prog, adaptive=adaptive,
+                                         emit=builder.add)
         say("cutter", 0.0)
         t_wait = time.perf_counter()
         passes, pass_ids, lifts = builder.finish()

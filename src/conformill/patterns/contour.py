@@ -40,7 +40,6 @@ def plan_contour(planner, poly, delta: float, progress=None, adaptive: bool = Tr
     Returns
     -------
     domain : conformill.types.DomainPaths
-    pieces : list of Piece
     """
     def link(i, a, b):
         return planner.evaluate(Segment(a.sample.uv[-1], b.sample.uv[0], delta, clip=poly.clip), 0.0)
@@ -48,5 +47,5 @@ def plan_contour(planner, poly, delta: float, progress=None, adaptive: bool = Tr
     stream = PieceStream(emit, link)
     fam, (curves, realised, predicted, shrinks) = plan_rings(planner, poly, delta, progress, adaptive, local,
                                                              on_curve=stream.on_curve)
-    pieces = stream.close()
-    return domain_paths("contour", curves, realised, predicted, shrinks, closed=True), pieces
+    stream.close()
+    return domain_paths("contour", curves, realised, predicted, shrinks, closed=True)

@@ -141,8 +141,6 @@ def point_polyline_distance(P: np.ndarray, Q: np.ndarray, closed: bool = False, 
     which holds for the densely sampled, nearly parallel curves used here).
     """
     Q = np.asarray(Q)
-    if len(Q) == 1:
-        return np.linalg.norm(P - Q[0], axis=1)
     _, j = (cKDTree(Q) if tree is None else tree).query(P)
     return _around_vertex(P, Q, j, closed)
 
@@ -229,7 +227,7 @@ def _exact_where_over(d: np.ndarray, limit: np.ndarray, P: np.ndarray, b, closed
         if b.tree is None:
             b.tree = cKDTree(Q)
         j = b.tree.query(Po)[1]
-    d[over] = _around_vertex(Po, np.asarray(Q), j, closed)
+    d[over] = _around_vertex(Po, Q, j, closed)
     return d
 
 

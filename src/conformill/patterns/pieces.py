@@ -13,8 +13,8 @@ from conformill.types import DomainPath, DomainPaths
 class Piece:
     """A path or a link between paths, cut in order.
 
-    ``kind`` is "path" or "link"; a ``None`` curve with kind "retract" separates passes.
-    ``reverse`` walks the curve's samples backwards. ``index`` is the path number.
+    ``kind`` is "path" or "link". ``reverse`` walks the curve's samples backwards.
+    ``index`` is the path number (for a link, the path it leaves).
     """
 
     kind: str
@@ -24,7 +24,7 @@ class Piece:
 
 
 class PieceStream:
-    """Pieces in machining order, each handed to ``emit`` as soon as it is final.
+    """Pieces in machining order, each handed to ``emit`` (if given) as soon as it is final.
 
     For a family of paths linked one to the next (rings, rows), :meth:`on_curve` takes each
     curve as the planner finishes it: path ``i`` is final once path ``i + 1`` exists, so it
@@ -33,14 +33,12 @@ class PieceStream:
     """
 
     def __init__(self, emit=None, link=None, reverse=None):
-        self.pieces = []
         self._emit = emit
         self._link = link
         self._reverse = reverse or (lambda i: False)
         self._curves = []
 
     def add(self, piece: Piece) -> None:
-        self.pieces.append(piece)
         if self._emit is not None:
             self._emit(piece)
 
@@ -54,10 +52,9 @@ class PieceStream:
             self._path(i)
             self.add(Piece("link", self._link(i, self._curves[i], curve), False, i))
 
-    def close(self) -> list:
-        """Add the last path; returns all pieces."""
+    def close(self) -> None:
+        """Add the last path."""
         self._path(len(self._curves) - 1)
-        return self.pieces
 
 
 def domain_paths(pattern: str, curves, realised, predicted, shrinks: int, closed: bool) -> DomainPaths:

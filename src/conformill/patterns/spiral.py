@@ -49,11 +49,10 @@ def plan_spiral(planner, poly, delta: float, progress=None, adaptive: bool = Tru
     Returns
     -------
     domain : conformill.types.DomainPaths
-    pieces : list of Piece
-        One path per revolution, with no links: each revolution starts where the last ended.
 
     ``emit(piece)``, if given, is called with each revolution as soon as it is final (once
-    the next one is planned: only the last revolution is ever planned again).
+    the next one is planned: only the last revolution is ever planned again): one path per
+    revolution, with no links, as each revolution starts where the last ended.
     """
     rings = Rings(poly, delta)
     warp, s_end = None, poly.R0
@@ -156,4 +155,4 @@ def plan_spiral(planner, poly, delta: float, progress=None, adaptive: bool = Tru
         if progress is not None:
             progress(min(levels[-1] / s_end, 1.0))
     stream.add(Piece("path", turns[-1], False, len(turns) - 1))
-    return domain_paths("spiral", turns, realised, predicted, shrinks, closed=False), stream.pieces
+    return domain_paths("spiral", turns, realised, predicted, shrinks, closed=False)

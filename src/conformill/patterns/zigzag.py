@@ -38,18 +38,18 @@ def plan_zigzag(planner, X: float, Y: float, delta: float, progress=None, adapti
     Returns
     -------
     domain : conformill.types.DomainPaths
-    pieces : list of Piece
     """
     fam, s_end = IsoU(Y, delta), X
     if adaptive:
         fam = IsoU(Y, delta, warp=build_warp(planner, fam, 0.0, lambda tau: np.full(np.shape(tau), float(X))))
         s_end = 1.0
     run = planner.run_local if adaptive and local else planner.run
+
     def link(i, a, b):
         end = 0 if i % 2 == 1 else -1  # along the side v = 0 or v = Y
         return planner.evaluate(Segment(a.sample.uv[end], b.sample.uv[end], delta), 0.0)
 
     stream = PieceStream(emit, link, reverse=lambda i: i % 2 == 1)
     curves, realised, predicted, shrinks = run(fam, 0.0, s_end, progress=progress, on_curve=stream.on_curve)
-    pieces = stream.close()
-    return domain_paths("zigzag", curves, realised, predicted, shrinks, closed=False), pieces
+    stream.close()
+    return domain_paths("zigzag", curves, realised, predicted, shrinks, closed=False)

@@ -49,10 +49,13 @@ to LinuxCNC's ``rs274 -g`` when it is installed. Columns:
   :func:`_common.length_floor`; ``s_max`` from the exact side-interval formula of
   :mod:`conformill.planning.steps` with the most concave principal curvature);
 * scallop p50/p99/p99.9/max in units of ``h`` over the interior samples (farther than ``r``
-  from the boundary), as ``conformill verify`` reports them; ``p99.9 reach`` and
-  ``uncut reach %``: the same over the interior samples that ``conformill verify`` counts
-  as reachable by a 3-axis ball (``summary["reachable"]``: tangent ball free, shank free,
-  facing up; uncut samples excluded from the percentile and counted separately);
+  from the boundary), as ``conformill verify`` reports them; ``p99.9 reach``, ``p99 reach``
+  and ``uncut reach %``: the same over the interior samples that ``conformill verify``
+  counts as reachable by a 3-axis ball (``summary["reachable"]``: tangent ball free, shank
+  free, facing up, and some ball position brings the sample within h; uncut samples
+  excluded from the percentile and counted separately); ``excused``: samples the program
+  left above h that the tangent test keeps but no ball position brings within h;
+  ``p99.9 tangent``: the p99.9 with them (verify before session 10);
   ``p99.9 ball`` / ``uncut ball %``: this script's own, simpler test
   (:func:`_common.reachable_samples`: facing up, tangent ball penetrating the part by less
   than ``h``, no shank check), uncut samples counted as infinite in the percentile;
@@ -273,8 +276,13 @@ def measure(mesh, path: Path, r, h, e, samples, reach, safe_z):
         "uncut_reach": float((~np.isfinite(rem)).mean()) if rem.size else math.nan,
         # conformill verify's own reachable set (ball, shank and undercut), when it has one
         "verify_reach": ({"p999": float(s["reachable"]["scallop"]["p999"]),
+                          "p99": float(s["reachable"]["scallop"]["p99"]),
                           "uncut": float(s["reachable"]["uncut_fraction"]),
-                          "unreachable": float(s["reachable"].get("unreachable_fraction", math.nan))}
+                          "unreachable": float(s["reachable"].get("unreachable_fraction", math.nan)),
+                          # excused by the rest search (no ball position brings them within h)
+                          "beyond_any_ball": int(s["reachable"].get("beyond_any_ball", 0)),
+                          "p999_tangent": float(s["reachable"]["tangent_test"]["scallop"]["p999"])
+                          if "tangent_test" in s["reachable"] else math.nan}
                          if "reachable" in s else None),
         "above_h": float(s["interior"].get("above_scallop_fraction", math.nan)),
         "uncut": float(s["uncut_fraction"]),
@@ -350,7 +358,7 @@ def run_mesh(name, h, r, e, n_samples, folder: Path, log):
 # ---- tables -----------------------------------------------------------------------------
 
 COLS = ("program", "wall s", "cpu s", "OCL x", "CL pts", "feed m", "len/floor", "p50/h", "p99/h", "p99.9/h",
-        "max/h", "p99.9 reach/h", "uncut reach %", "p99.9 ball/h", "uncut ball %", ">h %", "uncut %", "gouge um",
+        "max/h", "p99.9 reach/h", "p99 reach/h", "excused", "p99.9 tangent/h", "uncut reach %", "p99.9 ball/h", "uncut ball %", ">h %", "uncut %", "gouge um",
         "rapid mm", "rs274")
 
 
@@ -366,7 +374,10 @@ def _cells(row, h, floor_mm):
     return [row["program"], f(row["wall_s"], "%.2f"), f(row["cpu_s"], "%.2f"), f(row["ocl_ratio"], "%.1f"),
             str(row["cl_points"]), f(row["feed_mm"] / 1000, "%.2f"), f(row["feed_mm"] / floor_mm, "%.2f"),
             f(sc["p50"] / h, "%.3f"), f(sc["p99"] / h, "%.3f"), f(sc["p999"] / h, "%.3f"), f(sc["max"] / h, "%.1f"),
-            f(vr["p999"] / h if vr else None, "%.3f"), f(100 * vr["uncut"] if vr else None, "%.3f"),
+            f(vr["p999"] / h if vr else None, "%.3f"), f(vr["p99"] / h if vr and "p99" in vr else None, "%.3f"),
+            str(vr.get("beyond_any_ball", "-")) if vr else "-",
+            f(vr["p999_tangent"] / h if vr and "p999_tangent" in vr else None, "%.3f"),
+            f(100 * vr["uncut"] if vr else None, "%.3f"),
             f(row["p999_reach"] / h, "%.3f"), f(100 * row["uncut_reach"], "%.3f"), f(100 * row["above_h"], "%.2f"),
             f(100 * row["uncut"], "%.3f"), f(1000 * row["gouge_max"], "%.1f"), f(min(row["rapid"], 99), "%.2f"),
             str(row["rs274"])]

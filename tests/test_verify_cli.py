@@ -66,9 +66,11 @@ def test_rest_figures_on_a_plane(files, tmp_path, capsys):
     rep = tmp_path / "r.json"
     assert main(["verify", str(mesh), str(coarse), "-r", "3", "--scallop", "0.05", "--samples", "20000",
                  "--judge", "reachable", "--rest", "--report", str(rep)]) == 1
-    assert "rest material: 0 of the" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "tangent ball reaches, 0 (0 per mille)" in out and "the program's own share is" in out
     R = json.loads(rep.read_text())["reachable"]
-    assert R["rest"]["above_limit"] > 0 and R["rest"]["beyond_any_ball"] == 0
+    assert R["rest"]["above_limit"] > 0 and R["beyond_any_ball"] == 0 and R["unconfirmed"] == 0
+    assert R["samples"] == R["tangent_test"]["samples"]
     assert R["rest"]["p999_over_rest"] == pytest.approx(R["scallop"]["p999"], abs=1e-9)
 
 

@@ -112,33 +112,104 @@ def test_rest_material_in_a_v_groove_matches_the_circle():
     assert np.all(tangent_rest(cut, P[band], N[band]) > 2 * exact[band])
 
 
-def test_rest_figures_of_verify():
-    # a raster over the V-groove: every reachable sample left above H either has a rest
-    # above H, or is counted in the program's own share
-    from conformill.verify.gcode import read_gcode
-    from conformill.verify.simulate import verify
+def _raster(m, r, dy=0.5, dx=0.05, half=11.5):
+    """A drop-cutter raster over ``m``: rows along X, ``dy`` apart (G-code text)."""
+    from conformill.cutter import BallCutter
 
-    m = _v_groove()
-    r, H = 2.0, 0.02
+    cut = BallCutter(m.V, m.F, r)
     lines = ["G21 G90", "G0 Z20"]
-    for k, yy in enumerate(np.arange(-11.5, 11.51, 0.5)):
-        xs = np.arange(-11.5, 11.51, 0.05)
+    for k, yy in enumerate(np.arange(-half, half + 0.01, dy)):
+        xs = np.arange(-half, half + 0.01, dx)
         xs = xs if k % 2 == 0 else xs[::-1]
-        from conformill.cutter import BallCutter
-
-        zc = BallCutter(m.V, m.F, r).drop(np.column_stack([xs, np.full_like(xs, yy)])) - r
+        zc = cut.drop(np.column_stack([xs, np.full_like(xs, yy)])) - r
         lines.append(f"G0 X{xs[0]:.4f} Y{yy:.4f}")
         lines += [f"G1 X{x:.4f} Y{yy:.4f} Z{z:.4f} F1000" for x, z in zip(xs, zc)]
         lines.append("G0 Z20")
-    # a loose reachability depth (1 mm) keeps the groove's rim among the judged samples
-    res = verify(m, read_gcode("\n".join(lines) + "\n"), r, n_samples=20000, seed=1, scallop=H,
-                 judge="reachable", reach_depth=1.0, rest=True)
-    R = res.summary["reachable"]["rest"]
-    assert R["above_limit"] > 0 and R["beyond_any_ball"] > 0  # the groove's rims
-    p999 = res.summary["reachable"]["scallop"]["p999"]
-    assert R["p999_without_them"] < p999
-    # above the rest, the raster's own share (rows 0.5 mm apart: flat scallop 0.0157 mm)
-    # meets H; the rims' rest material alone does not
-    assert R["p999_over_rest"] <= R["p999_without_them"] + 1e-12
-    assert R["p999_over_rest"] < H < p999
-    assert res.summary["pass"] is False  # the figures do not change the verdict
+    return "\n".join(lines) + "\n"
+
+
+def _groove_rest(P, a, r):
+    """Exact rest at points of a V-groove's walls (see the circle test above)."""
+    s = np.abs(P[:, 0]) / np.cos(a)  # along the wall from the crease
+    u = np.maximum(r * np.tan(a) - s, 0.0)
+    return r - np.sqrt(np.maximum(r * r - u * u, 0.0))
+
+
+def _groove_case(n=400):
+    """A 12-degree V-groove with vertices 2 mm apart, and samples on its right wall only,
+    0.02-1 mm from the crease (with the wall's normal): the tangent ball of a sample near
+    the crease cuts into the left wall, but between vertices and away from any sample, so
+    verify's tangent test (judged against points) keeps it; every ball leaves
+    ``_groove_rest`` there, above H = 0.02 mm for ``u > sqrt(2 r H)``."""
+    from conformill.verify.samples import SurfaceSamples
+
+    a, r = np.radians(12.0), 2.0
+    m = _v_groove(a_deg=12.0, step=2.0)
+    rng = np.random.default_rng(5)
+    x0 = rng.uniform(0.02, 1.0, n)
+    y0 = rng.uniform(-4.0, 4.0, n)
+    P = np.column_stack([x0, y0, x0 * np.tan(a)])
+    N = np.tile([-np.sin(a), 0.0, np.cos(a)], (n, 1))
+    S = SurfaceSamples.from_arrays(P, N, boundary_distance=np.full(n, np.inf), area=8.0)
+    return m, S, a, r
+
+
+def test_reachable_judge_excuses_only_what_no_ball_can_reach():
+    # Each excusal is checked against the exact rest of the groove: a sample is excused
+    # when no ball can bring it within H, never when one can (up to the search's
+    # resolution near the rim, 3e-4 mm).
+    from conformill.verify.gcode import read_gcode
+    from conformill.verify.simulate import unreachable_samples, verify
+
+    m, S, a, r = _groove_case()
+    H = 0.02
+    exact = _groove_rest(S.points, a, r)
+    assert not unreachable_samples(S, m.V, r, H).any()  # the tangent test keeps them all
+    assert (exact > H + 3e-4).sum() >= 20 and (exact < H - 3e-4).sum() >= 200
+    res = verify(m, read_gcode(_raster(m, r, half=9.5)), r, samples=S, scallop=H, judge="reachable", rest=True)
+    q, t = res.summary["reachable"], res.summary["reachable"]["tangent_test"]
+    assert t["samples"] == len(S) and q["unconfirmed"] == 0
+    excused = ~res.reachable
+    assert excused.sum() == q["beyond_any_ball"] == len(S) - q["samples"]
+    assert np.all(exact[excused] > H - 3e-4)
+    assert np.all(exact[~excused] <= H + 3e-4)
+    assert np.all(res.remaining[exact > H] > H)  # no program does better than the rest
+    assert t["scallop"]["max"] > H and q["scallop"]["max"] < t["scallop"]["max"]
+    # the program's own share above the rest, over the judged samples
+    assert q["rest"]["p999_over_rest"] <= q["scallop"]["p999"] + 1e-12
+
+
+def test_reachable_judge_does_not_trust_a_drop_height_it_cannot_confirm(monkeypatch):
+    # A drop-cutter that let the ball hover 0.05 mm above the part would excuse every
+    # sample left above H: the judge measures the best ball's distance to the mesh with its
+    # own geometry and excuses nothing.
+    from conformill.cutter import BallCutter
+    from conformill.verify.gcode import read_gcode
+    from conformill.verify.simulate import verify
+
+    m, S, a, r = _groove_case()
+    H = 0.02
+    prog = read_gcode(_raster(m, r, half=9.5))
+    drop = BallCutter.drop
+    monkeypatch.setattr(BallCutter, "drop", lambda self, xy: drop(self, xy) + 0.05)
+    res = verify(m, prog, r, samples=S, scallop=H, judge="reachable")
+    q = res.summary["reachable"]
+    assert q["beyond_any_ball"] == 0 and q["unconfirmed"] >= (_groove_rest(S.points, a, r) > H).sum()
+    assert q["samples"] == q["tangent_test"]["samples"] == len(S)
+    assert q["scallop"]["p999"] == q["tangent_test"]["scallop"]["p999"] > H
+    assert not res.summary["pass"]
+
+
+def test_reachable_judge_excuses_nothing_on_a_plane():
+    # rows 1.2 mm apart with r = 2 leave 0.09 mm everywhere between them: all of it is the
+    # program's, and the check fails
+    from conformill.verify.gcode import read_gcode
+    from conformill.verify.simulate import verify
+
+    m = plane(size=24.0, spacing=1.0)
+    r, H = 2.0, 0.02
+    res = verify(m, read_gcode(_raster(m, r, dy=1.2, half=11.0)), r, n_samples=20000, seed=2, scallop=H,
+                 judge="reachable")
+    q = res.summary["reachable"]
+    assert q["beyond_any_ball"] == 0 and q["unconfirmed"] == 0
+    assert q["scallop"]["p999"] > 4 * H and not res.summary["pass"]

@@ -181,7 +181,9 @@ def _verify(mesh, program, job, n_samples: int, quiet: bool) -> dict:
     q = s["reachable"]
     out["reachable"] = {"unreachable_fraction": q["unreachable_fraction"], "scallop": q["scallop"],
                         "scallop_over_h": {k: v / job.scallop for k, v in q["scallop"].items()},
-                        "uncut_fraction": q["uncut_fraction"], "gouge_max": q["gouge_max"]}
+                        "uncut_fraction": q["uncut_fraction"], "gouge_max": q["gouge_max"],
+                        "beyond_any_ball": q["beyond_any_ball"], "unconfirmed": q["unconfirmed"],
+                        "tangent_test_scallop": q["tangent_test"]["scallop"]}
     return out
 
 

@@ -32,11 +32,12 @@ def add_arguments(parser) -> None:
                         help="chord tolerance for linearising arcs, mm (default 0.001)")
     parser.add_argument("--judge", choices=("interior", "reachable"), default="interior",
                         help="check the scallop limit on all interior samples (default) or only where a "
-                             "3-axis ball can reach (undercuts and pockets tighter than the ball excluded)")
+                             "3-axis ball can reach (undercuts, pockets tighter than the ball and creases "
+                             "where no ball position comes within H excluded)")
     parser.add_argument("--rest", action="store_true",
-                        help="with --scallop: at the reachable samples left above H, search the ball positions "
-                             "and report how many no ball can bring within H (rest material for a smaller tool) "
-                             "and the scallop above that rest; pass/fail does not change")
+                        help="with --scallop: search the ball positions at every reachable sample left above H "
+                             "and report the program's own share above the least material any ball leaves; "
+                             "pass/fail does not change")
     parser.add_argument("--report", default=None, metavar="OUT.json", help="write a JSON report")
     parser.add_argument("--plot", default=None, metavar="OUT.png", help="write a PNG heat map")
 
@@ -81,14 +82,19 @@ def table(summary: dict) -> str:
     w0 = max(len(r[0]) for r in rows) + 2
     out = [f"{'':<{w0}}{'interior (> r from boundary)':>30}{'reachable interior':>20}{'all samples':>16}"]
     out += [f"{r[0]:<{w0}}{r[1]:>30}{r[2]:>20}{r[3]:>16}" for r in rows]
-    out.append(f"unreachable by a 3-axis ball (undercut, or tighter than the ball): "
+    t = q["tangent_test"]
+    out.append(f"unreachable by a 3-axis ball (undercut, tighter than the ball, or beyond any ball position): "
                f"{100 * q['unreachable_fraction']:.3g} % of the interior; limits judged on: {summary['judged_on']}")
+    out.append(f"  of the samples the tangent ball reaches, {q['beyond_any_ball']} "
+               f"({q['beyond_any_ball_per_mille']:.3g} per mille) are left above the reach depth and no ball "
+               f"position brings them within it; with them the reachable p99.9 would be "
+               f"{_fmt(t['scallop']['p999'])}"
+               + (f"; {q['unconfirmed']} not excused: the best ball found does not touch the part"
+                  if q["unconfirmed"] else ""))
     rest = q.get("rest")
     if rest is not None:
-        out.append(f"rest material: {rest['beyond_any_ball']} of the {rest['above_limit']} reachable samples above H "
-                   f"cannot be brought within H by any ball position found "
-                   f"({rest.get('beyond_any_ball_per_mille', 0.0):.3g} per mille of the reachable); without them "
-                   f"p99.9 {_fmt(rest['p999_without_them'])}; above the rest p99.9 {_fmt(rest['p999_over_rest'])}")
+        out.append(f"rest material: above the least material any ball leaves, the program's own share is "
+                   f"p99.9 {_fmt(rest['p999_over_rest'])} ({rest['above_limit']} reachable samples above H)")
     g = summary
     if g["gouge_where"] is not None:
         x, y, z = g["gouge_where"]

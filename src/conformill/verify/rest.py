@@ -56,7 +56,7 @@ def tangent_rest(cutter, P, N) -> np.ndarray:
     return _ray_gap(P, N, C, r)[:, 0]
 
 
-def rest_material(cutter, P, N, chunk: int = 2000) -> np.ndarray:
+def rest_material(cutter, P, N, chunk: int = 2000, centres: bool = False):
     """Least material (mm) along ``N`` at ``P`` over ball centres on the drop surface near the tangent one.
 
     Parameters
@@ -65,10 +65,13 @@ def rest_material(cutter, P, N, chunk: int = 2000) -> np.ndarray:
         Drop-cutter of the part with the ball of the program.
     P, N : (k, 3) float64
         Samples on the part and unit normals towards the tool (``N_z > 0``).
+    centres : bool
+        Also return the ball centre that gave each value.
 
     Returns
     -------
-    (k,) float64
+    (k,) float64, and with ``centres`` a (k, 3) float64 (``z = -inf`` where the ball
+    was off the part)
     """
     P = np.asarray(P, dtype=np.float64)
     N = np.asarray(N, dtype=np.float64)
@@ -76,10 +79,12 @@ def rest_material(cutter, P, N, chunk: int = 2000) -> np.ndarray:
     g = np.linspace(-1.0, 1.0, _GRID)
     unit = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
     out = np.full(len(P), np.inf)
+    where = np.full((len(P), 3), np.nan)
     for a in range(0, len(P), chunk):
         p, n = P[a:a + chunk], N[a:a + chunk]
         centre = (p + r * n)[:, :2]
-        best = tangent_rest(cutter, p, n)
+        cz = cutter.drop(centre)
+        best = _ray_gap(p, n, np.column_stack([centre, cz])[:, None, :], r)[:, 0]  # tangent_rest
         for span in _SPANS:
             go = np.flatnonzero(best > 0.0)  # a sample inside the ball is done
             if go.size == 0:
@@ -95,5 +100,7 @@ def rest_material(cutter, P, N, chunk: int = 2000) -> np.ndarray:
             better = tj < best[go]
             best[go[better]] = tj[better]
             centre[go[better]] = C[rows, j, :2][better]
+            cz[go[better]] = C[rows, j, 2][better]
         out[a:a + chunk] = best
-    return out
+        where[a:a + chunk] = np.column_stack([centre, cz])
+    return (out, where) if centres else out

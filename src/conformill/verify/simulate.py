@@ -26,8 +26,12 @@ retract from the end of a cut starts on the part by design.
 
 The material simulation shares no code with the planner (``conformill.param``,
 ``geometry``, ``planning``, ``patterns``, ``cutter``, ``mapping``) so that it can catch its
-mistakes. Only the optional rest-material figures (``verify(..., rest=True)``) use the
-planner's drop-cutter, through :mod:`conformill.verify.rest`.
+mistakes. One step uses the planner's drop-cutter (through :mod:`conformill.verify.rest`):
+the search for samples that no ball position can bring within the reach depth, which
+``verify`` leaves out of the reachable set. It only runs where the program left more than
+that depth, and every sample it leaves out is confirmed with this module's own geometry
+(the best ball found must touch the part), so a drop height that came out too high cannot
+excuse anything.
 """
 
 from __future__ import annotations
@@ -690,6 +694,9 @@ class VerifyResult:
         Gouge depth (mm), 0 where none.
     interior : (n,) bool
         Samples farther than ``r`` (3D distance) from the mesh boundary.
+    reachable : (n,) bool
+        Interior samples some 3-axis ball position can bring within the reach depth (the
+        set ``summary["reachable"]`` describes; see :func:`verify`).
     hit_line, gouge_line : (n,) int64
         Source line of the move that cut each sample / that gouged it deepest (-1: none).
     rapids : dict
@@ -706,6 +713,7 @@ class VerifyResult:
     gouge_line: np.ndarray = field(repr=False)
     rapids: dict = field(repr=False)
     summary: dict = field(default_factory=dict)
+    reachable: np.ndarray | None = field(default=None, repr=False)
 
 
 def _stats(rem, gouge, P, gline, H, gouge_tol):
@@ -736,29 +744,107 @@ def _stats(rem, gouge, P, gline, H, gouge_tol):
     return out
 
 
-def _rest_figures(V, F, r, samples, rem, ok, H):
-    """Rest material at the reachable samples left with more than ``H`` (see ``verify``)."""
-    from conformill.cutter import BallCutter
-    from conformill.verify.rest import rest_material
+#: How far (mm) the independently measured distance from a rest-search centre to the mesh
+#: may exceed ``r`` before the drop height there is taken as wrong (see :func:`_beyond_any_ball`).
+_TOUCH_TOL = 1e-6
 
+
+@nb.njit(cache=True, parallel=True)
+def _min_dist2(C, start, tris, V, F, out):
+    """``out[q]`` = least squared distance from ``C[q]`` to the triangles ``tris[start[q]:start[q+1]]``."""
+    for q in nb.prange(C.shape[0]):
+        best = np.inf
+        for k in range(start[q], start[q + 1]):
+            f = tris[k]
+            a, b, c = F[f, 0], F[f, 1], F[f, 2]
+            d = _closest_pt_tri_d2(C[q, 0], C[q, 1], C[q, 2], V[a, 0], V[a, 1], V[a, 2],
+                                   V[b, 0], V[b, 1], V[b, 2], V[c, 0], V[c, 1], V[c, 2])
+            if d < best:
+                best = d
+        out[q] = best
+
+
+def _mesh_distance(V, F, C, reach):
+    """Distance from each point of ``C`` to the mesh, exact where it is at most ``reach``
+    (``inf`` beyond): a k-d tree of the face centroids gives the candidates."""
+    cen = V[F].mean(axis=1)
+    grow = float(np.max(np.linalg.norm(V[F] - cen[:, None, :], axis=2))) if len(F) else 0.0
+    hits = cKDTree(cen).query_ball_point(C, reach + grow)
+    start = np.zeros(len(C) + 1, dtype=np.int64)
+    start[1:] = np.cumsum([len(h) for h in hits])
+    tris = np.fromiter((t for h in hits for t in h), dtype=np.int64, count=int(start[-1]))
+    out = np.empty(len(C))
+    _min_dist2(np.ascontiguousarray(C, dtype=np.float64), start, tris, V, F, out)
+    return np.sqrt(out)
+
+
+def _beyond_any_ball(V, F, r, samples, rem, ok, depth, full=False):
+    """Samples of ``ok`` left with more than ``depth`` that no ball position brings within it.
+
+    A sample the program leaves within ``depth`` is reachable (the program's own ball did
+    it). At the others the ball positions reachable from above are searched
+    (:func:`conformill.verify.rest.rest_material`, centres on the drop surface of the
+    planner's drop-cutter). Only that search's centres come from planner code, so each
+    excusal is confirmed independently: the ball at the best centre found must touch the
+    part, its distance to the mesh (exact, this module's own point-triangle distance)
+    at most ``r + 1e-6`` mm. A drop height that came out too high (a ball hovering above
+    the part, which would leave material it need not) is never used to excuse a sample.
+    Without ``full``, the search runs only where the tangent ball, dropped, leaves more
+    than ``depth`` (elsewhere ``rest`` holds that ball's value, an upper bound).
+
+    Returns
+    -------
+    beyond : (n,) bool
+        The excused samples.
+    rest : (n,) float64
+        The least material found at each searched sample (``nan`` where not searched).
+    unconfirmed : int
+        Samples the search would have excused whose best ball does not touch the part.
+    """
+    from conformill.cutter import BallCutter
+    from conformill.verify.rest import rest_material, tangent_rest
+
+    beyond = np.zeros(len(rem), dtype=bool)
+    rest = np.full(len(rem), np.nan)
+    cand = np.flatnonzero(ok & ~(rem <= depth))  # uncut samples (inf) too
+    if cand.size == 0:
+        return beyond, rest, 0
+    cutter = BallCutter(V, F, r)
+    if not full:
+        # the tangent ball dropped onto the part is one of the searched positions: where it
+        # leaves at most ``depth`` the sample is reachable (one drop instead of a search)
+        t0 = tangent_rest(cutter, samples.points[cand], samples.normals[cand])
+        rest[cand] = t0
+        cand = cand[t0 > depth]
+        if cand.size == 0:
+            return beyond, rest, 0
+    t, C = rest_material(cutter, samples.points[cand], samples.normals[cand], centres=True)
+    rest[cand] = t
+    over = np.flatnonzero(t > depth)
+    if over.size == 0:
+        return beyond, rest, 0
+    Co = C[over]
+    touch = np.isfinite(Co[:, 2])
+    dist = np.full(over.size, np.inf)
+    if touch.any():
+        dist[touch] = _mesh_distance(V, F, Co[touch], r + 1.0)
+    confirmed = dist <= r + _TOUCH_TOL
+    # a ball off the part (no drop height: -inf) leaves the sample alone: nothing to confirm,
+    # and no reason to excuse it either
+    beyond[cand[over[confirmed]]] = True
+    return beyond, rest, int((~confirmed).sum())
+
+
+def _rest_figures(rem, rest, ok, H):
+    """The program's own share above the rest at the judged samples (see ``verify``)."""
     fin = ok & np.isfinite(rem)
-    above = np.flatnonzero(fin & (rem > H))
-    out = {"above_limit": int(above.size), "beyond_any_ball": 0, "p999_without_them": math.nan,
-           "p999_over_rest": math.nan}
-    if not fin.any():
-        return out
-    t = np.zeros(0)
-    if above.size:
-        t = rest_material(BallCutter(V, F, r), samples.points[above], samples.normals[above])
-    beyond = t > H
-    keep = fin.copy()
-    keep[above[beyond]] = False
-    own = rem.copy()
-    own[above] = rem[above] - np.minimum(t, rem[above])
-    out["beyond_any_ball"] = int(beyond.sum())
-    out["beyond_any_ball_per_mille"] = 1000.0 * beyond.sum() / fin.sum()
-    out["p999_without_them"] = float(np.percentile(rem[keep], 99.9)) if keep.any() else math.nan
-    out["p999_over_rest"] = float(np.percentile(own[fin], 99.9))
+    above = fin & (rem > H)
+    out = {"above_limit": int(above.sum()), "p999_over_rest": math.nan}
+    if fin.any():
+        own = rem.copy()
+        t = np.where(np.isfinite(rest), rest, 0.0)
+        own[above] = rem[above] - np.minimum(t[above], rem[above])
+        out["p999_over_rest"] = float(np.percentile(own[fin], 99.9))
     return out
 
 
@@ -779,7 +865,8 @@ def unreachable_samples(samples: SurfaceSamples, V: np.ndarray, tool_radius: flo
     tries only the tangent ball, though, so it errs both ways at concave creases: in a
     V-groove it excuses a band of wall that the ball sitting in the groove does bring
     within ``depth``, and at a crease between facets it keeps samples that no ball brings
-    within ``depth`` (``verify(..., rest=True)`` counts those). It shares nothing with the
+    within ``depth`` (``verify`` removes those afterwards, with a search of the ball
+    positions where the program left more than ``depth``). It shares nothing with the
     planner's reachability analysis.
 
     Returns
@@ -885,28 +972,36 @@ def verify(mesh, program: Program, tool_radius: float, n_samples: int = 200_000,
         Called with the number of samples done after each chunk.
     judge : {"interior", "reachable"}
         Which samples the scallop and uncut limits are checked on: all interior samples
-        (default), or only those a 3-axis ball can reach (:func:`unreachable_samples`
-        with depth ``reach_depth``). The gouge limit is always checked on all interior
-        samples. Both figure sets are reported either way.
+        (default), or only those some 3-axis ball position can bring within
+        ``reach_depth``. That set is built in two steps: :func:`unreachable_samples` (the
+        ball touching the sample along its normal, and its shank, tested against points)
+        removes undercuts and pockets tighter than the ball; then, at the samples left
+        with more than ``reach_depth``, :func:`_beyond_any_ball` searches the ball
+        positions reachable from above and removes those no ball brings within
+        ``reach_depth`` (creases between facets, which the first test, judged against
+        points, lets through), each confirmed by this module's own distance to the mesh.
+        The gouge limit is always checked on all interior samples. All figure sets are
+        reported either way; ``summary["reachable"]["tangent_test"]`` holds the figures
+        of the first step alone.
     reach_depth : float, optional
         Material depth (mm) that makes a sample unreachable; default ``scallop`` (or
         ``0.01 r``).
     rest : bool
-        With ``scallop``: at every reachable interior sample left with more than
-        ``scallop``, search the ball positions for the least material any of them leaves
-        (:func:`conformill.verify.rest.rest_material`) and report, in
-        ``summary["reachable"]["rest"]``, how many of those samples no ball brings within
-        ``scallop`` (material for a smaller tool, whatever the stepover), the p99.9 without
-        them, and the p99.9 of the material above that rest (the program's own share). The
-        pass/fail check does not change.
+        With ``scallop``: search the ball positions at every reachable sample left with
+        more than ``reach_depth`` (not only where the tangent ball, dropped, leaves more)
+        and report, in ``summary["reachable"]["rest"]``, the p99.9 of the material above
+        the least any ball leaves (the program's own share) and how many reachable
+        samples are left above ``scallop``. The pass/fail check does not change.
 
     Returns
     -------
     VerifyResult
         ``summary`` holds ``interior`` and ``all`` figure sets (``scallop`` {p50, p99,
         p999, max}, ``uncut_fraction``, ``gouge_max``, ``gouge_where``, ``gouge_line``,
-        ...), the interior figures repeated at the top level, the rapid clearances, the
-        counts, the thresholds and ``pass``.
+        ...), the interior figures repeated at the top level, the ``reachable`` set's
+        (with ``unreachable_fraction``, ``beyond_any_ball`` and its per-mille share of
+        the samples the tangent test keeps, ``unconfirmed`` and ``tangent_test``), the
+        rapid clearances, the counts, the thresholds and ``pass``.
 
     Raises
     ------
@@ -933,16 +1028,27 @@ def verify(mesh, program: Program, tool_radius: float, n_samples: int = 200_000,
     hit_line = np.where(hit >= 0, feed_lines[np.maximum(hit, 0)], -1)
     gouge_line = np.where(gj >= 0, feed_lines[np.maximum(gj, 0)], -1)
     interior = samples.boundary_distance > r
-    blocked = unreachable_samples(samples, V, r, reach_depth if reach_depth is not None else
-                                  (scallop if scallop is not None else 0.01 * r))
+    depth = reach_depth if reach_depth is not None else (scallop if scallop is not None else 0.01 * r)
+    blocked = unreachable_samples(samples, V, r, depth)
     rap = rapid_clearance(V, F, program, r, cap=clearance_cap)
     s_int = _stats(rem[interior], g[interior], samples.points[interior], gouge_line[interior], scallop, gouge_tol)
     s_all = _stats(rem, g, samples.points, gouge_line, scallop, gouge_tol)
-    ok = interior & ~blocked
+    tangent_ok = interior & ~blocked
+    beyond, rest_t, unconfirmed = _beyond_any_ball(V, F, r, samples, rem, tangent_ok, depth,
+                                                   full=bool(rest and scallop is not None))
+    ok = tangent_ok & ~beyond
     s_reach = _stats(rem[ok], g[ok], samples.points[ok], gouge_line[ok], scallop, gouge_tol)
-    s_reach["unreachable_fraction"] = float((interior & blocked).sum() / max(int(interior.sum()), 1))
+    n_int = max(int(interior.sum()), 1)
+    s_reach["unreachable_fraction"] = float((interior & ~ok).sum() / n_int)
+    s_reach["beyond_any_ball"] = int(beyond.sum())
+    s_reach["beyond_any_ball_per_mille"] = 1000.0 * float(beyond.sum()) / max(int(tangent_ok.sum()), 1)
+    s_reach["unconfirmed"] = unconfirmed
+    s_t = _stats(rem[tangent_ok], g[tangent_ok], samples.points[tangent_ok], gouge_line[tangent_ok], scallop,
+                 gouge_tol)
+    s_reach["tangent_test"] = {"samples": s_t["samples"], "scallop": s_t["scallop"],
+                               "unreachable_fraction": float((interior & blocked).sum() / n_int)}
     if rest and scallop is not None:
-        s_reach["rest"] = _rest_figures(V, F, r, samples, rem, ok, scallop)
+        s_reach["rest"] = _rest_figures(rem, rest_t, ok, scallop)
     summary = {
         "tool_radius": r,
         "samples": len(samples),
@@ -984,4 +1090,4 @@ def verify(mesh, program: Program, tool_radius: float, n_samples: int = 200_000,
         fails.append(f"gouge {s_int['gouge_max']:.4g} mm > {gouge:g} mm")
     summary["failures"] = fails
     summary["pass"] = not fails
-    return VerifyResult(samples, rem, g, interior, hit_line, gouge_line, rap, summary)
+    return VerifyResult(samples, rem, g, interior, hit_line, gouge_line, rap, summary, reachable=ok)

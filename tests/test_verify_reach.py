@@ -177,6 +177,24 @@ def test_reachable_judge_excuses_only_what_no_ball_can_reach():
     assert t["scallop"]["max"] > H and q["scallop"]["max"] < t["scallop"]["max"]
     # the program's own share above the rest, over the judged samples
     assert q["rest"]["p999_over_rest"] <= q["scallop"]["p999"] + 1e-12
+    assert np.array_equal(res.excused, excused)
+
+
+def test_top_view_marks_what_fails_and_what_no_ball_can_reach(tmp_path):
+    from conformill.output.plot_verify import overlay_masks, plot_verify
+    from conformill.verify.gcode import read_gcode
+    from conformill.verify.simulate import verify
+
+    m, S, a, r = _groove_case()
+    H = 0.02
+    res = verify(m, read_gcode(_raster(m, r, half=9.5)), r, samples=S, scallop=H, judge="reachable")
+    marks = {colour: mask for mask, colour, _ in overlay_masks(res)}
+    assert np.array_equal(marks["red"], res.reachable & (res.remaining > H))
+    assert np.array_equal(marks["orange"], res.excused) and marks["orange"].sum() > 0
+    assert marks["red"].sum() == round(res.summary["reachable"]["above_scallop_fraction"] * res.reachable.sum())
+    assert not (marks["red"] & marks["orange"]).any()
+    plot_verify(tmp_path / "v.png", res)
+    assert (tmp_path / "v.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
 def test_reachable_judge_does_not_trust_a_drop_height_it_cannot_confirm(monkeypatch):

@@ -8,13 +8,42 @@ from conformill.errors import OutputError
 from conformill.output.atomic import atomic_path
 
 
+def overlay_masks(result) -> list:
+    """The sample sets the top view marks: ``[(mask, colour, label), ...]``.
+
+    Uncut samples (black); gouges deeper than the limit G when given, else 1 um
+    (magenta); with a scallop limit H, the judged samples left above it (red: what fails
+    the check; judged = reachable or interior, as the check was made) and the samples
+    excused because no ball position brings them within the reach depth (orange: rest
+    material for a smaller tool).
+    """
+    s = result.summary
+    rem, gouge = result.remaining, result.gouge
+    g_lim = s.get("thresholds", {}).get("gouge")
+    g_show = max(float(g_lim), 1e-3) if g_lim is not None else 1e-3
+    g_label = (f"gouge > G = {g_show:g} mm" if g_lim is not None else "gouge > 1 um")
+    out = [(~np.isfinite(rem), "black", "uncut"),
+           (gouge > g_show, "magenta", f"{g_label} (max {s['all']['gouge_max']:.3g} mm)")]
+    H = s.get("thresholds", {}).get("scallop")
+    if H is not None:
+        judged = result.reachable if s.get("judged_on") == "reachable" and result.reachable is not None \
+            else result.interior
+        scope = "reachable" if s.get("judged_on") == "reachable" else "interior"
+        out.append((judged & np.isfinite(rem) & (rem > H), "red", f"{scope}, above H = {H:g} mm"))
+        if result.excused is not None:
+            out.append((result.excused, "orange", "no ball position within the depth (rest material)"))
+    return out
+
+
 def plot_verify(path, result, max_pixels: int = 700, dpi: int = 110, title: str = "") -> None:
     """Write a PNG of a :class:`conformill.verify.simulate.VerifyResult`.
 
     Left: the samples seen from +Z (top view) binned into pixels, each pixel coloured by the
     largest remaining material along the normal of its samples (mm, colour bar; the scale
     is clipped at twice the scallop limit, or at the p99.9); pixels with a gouged sample
-    (deeper than the gouge limit G when given, else 1 um) in magenta, with an uncut sample in black. Right: histogram of the remaining material
+    (deeper than the gouge limit G when given, else 1 um) in magenta, with an uncut sample in black; with a
+    scallop limit, the judged samples above it as red dots and the rest material no ball can remove as
+    orange ones (:func:`overlay_masks`). Right: histogram of the remaining material
     over the interior samples, with the scallop limit and the percentiles marked.
 
     Parameters
@@ -37,7 +66,7 @@ def plot_verify(path, result, max_pixels: int = 700, dpi: int = 110, title: str 
 
     s = result.summary
     P = result.samples.points
-    rem, gouge, interior = result.remaining, result.gouge, result.interior
+    rem, interior = result.remaining, result.interior
     H = s["thresholds"].get("scallop")
     finite = np.isfinite(rem)
     p999 = s["scallop"]["p999"]
@@ -71,13 +100,8 @@ def plot_verify(path, result, max_pixels: int = 700, dpi: int = 110, title: str 
     handles = []
     from matplotlib.patches import Patch
 
-    # mark gouges beyond the limit G when one is given (those fail the check); otherwise
-    # anything deeper than 1 um
-    g_lim = s.get("thresholds", {}).get("gouge")
-    g_show = max(float(g_lim), 1e-3) if g_lim is not None else 1e-3
-    g_label = (f"gouge > G = {g_show:g} mm" if g_lim is not None else "gouge > 1 um")
-    for mask, colour, label in ((~finite, "black", "uncut"),
-                                (gouge > g_show, "magenta", f"{g_label} (max {s['all']['gouge_max']:.3g} mm)")):
+    marks = overlay_masks(result)
+    for mask, colour, label in marks[:2][::-1]:  # pixels with an uncut or gouged sample
         if mask.any():
             over = np.zeros(nx * ny)
             over[cellid[mask]] = 1.0
@@ -86,6 +110,12 @@ def plot_verify(path, result, max_pixels: int = 700, dpi: int = 110, title: str 
             rgba[..., 3] = over.reshape(ny, nx)
             ax.imshow(rgba, origin="lower", extent=extent, interpolation="nearest")
             handles.append(Patch(color=colour, label=label))
+    # the few samples above the limit and the rest material: dots, so that isolated ones show
+    for mask, colour, label in marks[2:]:
+        idx = np.flatnonzero(mask)[:50_000]
+        if idx.size:
+            ax.scatter(P[idx, 0], P[idx, 1], s=4.0, c=colour, linewidths=0)
+            handles.append(Patch(color=colour, label=f"{label}: {int(mask.sum())}"))
     if handles:
         ax.legend(handles=handles, loc="upper right", fontsize=8)
     cb = fig.colorbar(sc, ax=ax, shrink=0.85)

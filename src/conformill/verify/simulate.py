@@ -697,6 +697,9 @@ class VerifyResult:
     reachable : (n,) bool
         Interior samples some 3-axis ball position can bring within the reach depth (the
         set ``summary["reachable"]`` describes; see :func:`verify`).
+    excused : (n,) bool
+        Samples the tangent test keeps but that no ball position brings within the reach
+        depth (left out of ``reachable``).
     hit_line, gouge_line : (n,) int64
         Source line of the move that cut each sample / that gouged it deepest (-1: none).
     rapids : dict
@@ -714,6 +717,7 @@ class VerifyResult:
     rapids: dict = field(repr=False)
     summary: dict = field(default_factory=dict)
     reachable: np.ndarray | None = field(default=None, repr=False)
+    excused: np.ndarray | None = field(default=None, repr=False)
 
 
 def _stats(rem, gouge, P, gline, H, gouge_tol):
@@ -1090,4 +1094,4 @@ def verify(mesh, program: Program, tool_radius: float, n_samples: int = 200_000,
         fails.append(f"gouge {s_int['gouge_max']:.4g} mm > {gouge:g} mm")
     summary["failures"] = fails
     summary["pass"] = not fails
-    return VerifyResult(samples, rem, g, interior, hit_line, gouge_line, rap, summary, reachable=ok)
+    return VerifyResult(samples, rem, g, interior, hit_line, gouge_line, rap, summary, reachable=ok, excused=beyond)

@@ -18,8 +18,8 @@ judged by ``verify`` on its own samples (400k, seed 0, limit 1.05 h, reach depth
     drop-cutter (gouge-safe) and cut as its own pass between retracts;
 ``--mode creases``
     the program plus passes along the creases of the drop surface: drops on a grid of
-    ``--grid`` mm, cells whose second difference in one of four directions exceeds
-    ``--kink`` (slope change per mm), chained per connected component, each point moved
+    ``--grid`` mm, cells where the slope changes by more than ``--kink`` (dimensionless)
+    across the cell in one of four directions, chained per connected component, each point moved
     across the chain to where the drop height lies lowest below the chord (the fold).
 
 Usage::

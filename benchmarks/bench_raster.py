@@ -54,8 +54,8 @@ to LinuxCNC's ``rs274 -g`` when it is installed. Columns:
   counts as reachable by a 3-axis ball (``summary["reachable"]``: tangent ball free, shank
   free, facing up, and some ball position brings the sample within h; uncut samples
   excluded from the percentile and counted separately); ``excused``: samples the program
-  left above h that the tangent test keeps but no ball position brings within h;
-  ``p99.9 tangent``: the p99.9 with them (verify before session 10);
+  left above h that verify's tangent test keeps but for which the rest search finds no
+  ball within 1.2 h; ``p99.9 tangent``: the p99.9 with them (verify before session 10);
   ``p99.9 ball`` / ``uncut ball %``: this script's own, simpler test
   (:func:`_common.reachable_samples`: facing up, tangent ball penetrating the part by less
   than ``h``, no shank check), uncut samples counted as infinite in the percentile;
@@ -262,7 +262,7 @@ def measure(mesh, path: Path, r, h, e, samples, reach, safe_z):
 
     prog = read_gcode(path)
     t0 = time.perf_counter()
-    v = verify(mesh, prog, r, samples=samples, scallop=h, gouge=e)
+    v = verify(mesh, prog, r, samples=samples, scallop=h, gouge=e, judge="reachable")
     t_ver = time.perf_counter() - t0
     s = v.summary
     sel = v.interior & reach
@@ -402,7 +402,7 @@ def markdown(results, machine: str) -> str:
                    f"({ras['ms_per_point']:.2f} ms each, {ras['run_s']:.1f} s), chord check |dz| p99 "
                    f"{1000 * R['chord_dz']['p99_abs']:.1f} um, p99.9 {1000 * R['chord_dz']['p999_abs']:.1f} um, max {1000 * R['chord_dz']['max_abs']:.1f} um. "
                    f"Verify: {R['samples']} samples, {R['interior']} interior, "
-                   f"{100 * R['reachable_share']:.2f} % of them reachable by the tangent-ball test"
+                   f"{100 * R['reachable_share']:.2f} % of them reachable by this script's ball test"
                    + ("" if not vr else f", {100 * (1 - vr['unreachable']):.2f} % by conformill verify's") + ".\n")
         out.append("| " + " | ".join(COLS) + " |")
         out.append("|" + "---|" * len(COLS))

@@ -10,8 +10,8 @@ every sample the program left above ``h``, the ball positions reachable from abo
 the one that leaves the least material along the sample's normal
 (:func:`conformill.verify.rest.rest_material`: centres on the drop surface of
 conformill's exact drop-cutter, on grids around the tangent ball's centre), and excuses
-the sample when that least value is above ``h`` and the best ball is confirmed to touch
-the part. The least value found is an upper bound of the true rest (a better ball may
+the sample when that least value is above ``1.2 h`` (a margin for the search's upper
+bound) and the best ball is confirmed to touch the part. The least value found is an upper bound of the true rest (a better ball may
 lie between grid points).
 
 It prints, per program (``verify(..., scallop=1.05 h, reach_depth=h, judge="reachable",
@@ -75,6 +75,7 @@ def main(argv=None):
               f"{q['unconfirmed']} | {T['scallop']['p999'] / h:.3f} | {q['scallop']['p999'] / h:.3f} | "
               f"{q['rest']['above_limit']} | {q['rest']['p999_over_rest'] / h:.3f} | {time.perf_counter() - t:.1f} |",
               flush=True)
+
 
 if __name__ == "__main__":
     main()

@@ -156,8 +156,9 @@ def _verify(mesh, program, job, n_samples: int, quiet: bool) -> dict:
     """Run the independent simulation on the program as written to disk.
 
     ``program`` is read back from the G-code file (not taken from the planner's arrays), so
-    the check covers the writer too. Thresholds: scallop ``1.05 H`` at p99.9 over the samples
-    farther than ``R`` from the boundary, no uncut sample, gouge at most ``E``.
+    the check covers the writer too. Thresholds: scallop ``1.05 H`` at p99.9 and no uncut
+    sample over the reachable interior samples (farther than ``R`` from the boundary, see
+    ``verify(judge="reachable")``), gouge at most ``E`` over all interior samples.
     """
     from conformill.verify.simulate import verify
 

@@ -85,12 +85,15 @@ def table(summary: dict) -> str:
     t = q["tangent_test"]
     out.append(f"unreachable by a 3-axis ball (undercut, tighter than the ball, or beyond any ball position): "
                f"{100 * q['unreachable_fraction']:.3g} % of the interior; limits judged on: {summary['judged_on']}")
-    out.append(f"  of the samples the tangent ball reaches, {q['beyond_any_ball']} "
-               f"({q['beyond_any_ball_per_mille']:.3g} per mille) are left above the reach depth and no ball "
-               f"position brings them within it; with them the reachable p99.9 would be "
-               f"{_fmt(t['scallop']['p999'])}"
-               + (f"; {q['unconfirmed']} not excused: the best ball found does not touch the part"
-                  if q["unconfirmed"] else ""))
+    if not q.get("searched", True):
+        out.append("  (crease material no ball position removes is left out only with --judge reachable or --rest)")
+    else:
+        out.append(f"  of the samples the tangent ball reaches, {q['beyond_any_ball']} "
+                   f"({q['beyond_any_ball_per_mille']:.3g} per mille) are left above the reach depth and the "
+                   f"ball positions searched leave more than 1.2 times it; with them the reachable p99.9 would be "
+                   f"{_fmt(t['scallop']['p999'])}"
+                   + (f"; {q['unconfirmed']} not excused: the best ball found does not touch the part"
+                      if q["unconfirmed"] else ""))
     rest = q.get("rest")
     if rest is not None:
         out.append(f"rest material: above the least material any ball leaves, the program's own share is "

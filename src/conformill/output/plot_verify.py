@@ -16,6 +16,15 @@ def overlay_masks(result) -> list:
     the check; judged = reachable or interior, as the check was made) and the samples
     excused because no ball position brings them within the reach depth (orange: rest
     material for a smaller tool).
+
+    Parameters
+    ----------
+    result : conformill.verify.simulate.VerifyResult
+
+    Returns
+    -------
+    list of (mask, colour, label)
+        ``mask`` is an (n,) bool over the samples, ``colour`` a matplotlib colour name.
     """
     s = result.summary
     rem, gouge = result.remaining, result.gouge

@@ -12,7 +12,7 @@ judged by ``verify`` on its own samples (400k, seed 0, limit 1.05 h, reach depth
 ``--mode best``
     the program plus extra passes through the best ball centres of the planner-side
     samples (``--samples``, seed 7, *not* the judge's): the tangent ball dropped, then the
-    rest search (:func:`conformill.verify.rest.rest_material`) where it leaves more than
+    rest search (:func:`conformill.verify.rest.rest_material`, one start) where it leaves more than
     ``--low`` h; the centres of the samples with a rest in (low h, h], thinned to 0.03 mm
     and chained greedily where they lie within ``--link`` mm; each chain refined by the
     drop-cutter (gouge-safe) and cut as its own pass between retracts;
@@ -98,7 +98,8 @@ def best_centres(mesh, cut, r, h, n, low):
     t = np.full(len(P), np.inf)
     t[up] = tangent_rest(cut, P[up], N[up])
     cand = np.flatnonzero(up & (t > low * h))
-    rest, C = rest_material(cut, P[cand], N[cand], centres=True)
+    # the planner side may search cheaply (one start): a missed better ball only costs a pass
+    rest, C = rest_material(cut, P[cand], N[cand], centres=True, starts=1, coarse=(0.2, 9))
     B = C[(rest > low * h) & (rest <= h) & np.isfinite(C[:, 2])]
     print(f"  {n} samples, {cand.size} searched, {len(B)} with a rest in ({low} h, h]")
     # thin to 0.03 mm

@@ -62,7 +62,7 @@ def main(argv=None):
     mesh, info = load_part(args.mesh)
     h, r = args.h, args.r
     print(f"{args.mesh}: {mesh.n_faces} faces, r = {r:g}, h = {h:g}, {args.samples} samples (seed 0)")
-    print("| program | reachable (tangent test) | excused: no ball within h | per mille | unconfirmed "
+    print("| program | reachable (tangent test) | excused: no ball found within 1.2 h | per mille | unconfirmed "
           "| p99.9/h, tangent test | p99.9/h, reachable | above 1.05 h | p99.9/h over rest | s |")
     print("|---|---|---|---|---|---|---|---|---|---|")
     for prog in args.programs:

@@ -16,7 +16,7 @@ all of them is the answer. Refining several starts matters: the material left at
 sample is not a convex function of the centre near creases and steep walls, and refining
 only the best coarse centre missed a better ball for 15 % of the samples it found beyond
 reach on igea (a search still wider and finer, 41 x 41 centres over +-0.6 r and 8 starts
-on 11 x 11 grids, found one for 21 of the 823 that this one and the single-start search
+on 11 x 11 grids, found one for 29 of the 823 that this one and the single-start search
 both put above h; see :func:`conformill.verify.simulate.verify` for the margin that
 keeps such samples judged). The least value found is an upper bound of the true rest; it is exact up
 to the last grid where the rest is of the order of a scallop height (the best ball then

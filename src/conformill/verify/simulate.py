@@ -580,6 +580,21 @@ def segment_triangle_distance(P, Q, V, F, seg, tri) -> np.ndarray:
     return np.sqrt(out)
 
 
+def _centroids(V, F):
+    """Face centroids and the largest distance from a centroid to a vertex of its face."""
+    cen = V[F].mean(axis=1)
+    return cen, float(np.sqrt(((V[F] - cen[:, None, :]) ** 2).sum(-1)).max())
+
+
+def _near_triangles(tree, X, rad):
+    """``(owner, tri)``: every face whose centroid (``tree``) lies within ``rad`` of a point
+    of ``X`` (``rad`` scalar or per point), as index pairs into ``X`` and the faces."""
+    lists = tree.query_ball_point(X, rad, workers=-1)
+    lens = np.fromiter((len(x) for x in lists), dtype=np.int64, count=len(lists))
+    tri = np.fromiter((i for x in lists for i in x), dtype=np.int64, count=int(lens.sum()))
+    return np.repeat(np.arange(len(X)), lens), tri
+
+
 def rapid_clearance(V, F, program: Program, tool_radius: float, cap: float = 5.0, retract_tol: float = 1e-6) -> dict:
     """Clearance between the ball and the mesh along the rapid (G0) moves.
 
@@ -616,8 +631,7 @@ def rapid_clearance(V, F, program: Program, tool_radius: float, cap: float = 5.0
     prev_feed[idx > 0] = program.motion[idx[idx > 0] - 1] == FEED
     retract = (dxy <= retract_tol) & (B[idx, 2] > A[idx, 2]) & prev_feed
     if k and len(F):
-        cen = V[F].mean(axis=1)
-        rmax = float(np.sqrt(((V[F] - cen[:, None, :]) ** 2).sum(-1)).max())
+        cen, rmax = _centroids(V, F)
         tree = cKDTree(cen)
         step = max(rmax, 0.25 * r, 1e-3)
         L = np.linalg.norm(Q - P, axis=1)
@@ -647,10 +661,8 @@ def rapid_clearance(V, F, program: Program, tool_radius: float, cap: float = 5.0
         near = lower < cap
         if near.any():
             rad = np.minimum(d0[near] + half[near], cap + r + half[near]) + half[near] + rmax
-            lists = tree.query_ball_point(S[near], rad, workers=-1)
-            lens = np.fromiter((len(x) for x in lists), dtype=np.int64, count=len(lists))
-            tri = np.fromiter((i for x in lists for i in x), dtype=np.int64, count=int(lens.sum()))
-            seg = np.repeat(sid[near], lens)
+            owner, tri = _near_triangles(tree, S[near], rad)
+            seg = sid[near][owner]
             key = np.unique(seg * len(F) + tri)
             seg, tri = key // len(F), key % len(F)
             d = segment_triangle_distance(P, Q, V, F, seg, tri) - r
@@ -760,33 +772,17 @@ _TOUCH_TOL = 1e-6
 _EXCUSE_MARGIN = 1.2
 
 
-@nb.njit(cache=True, parallel=True)
-def _min_dist2(C, start, tris, V, F, out):
-    """``out[q]`` = least squared distance from ``C[q]`` to the triangles ``tris[start[q]:start[q+1]]``."""
-    for q in nb.prange(C.shape[0]):
-        best = np.inf
-        for k in range(start[q], start[q + 1]):
-            f = tris[k]
-            a, b, c = F[f, 0], F[f, 1], F[f, 2]
-            d = _closest_pt_tri_d2(C[q, 0], C[q, 1], C[q, 2], V[a, 0], V[a, 1], V[a, 2],
-                                   V[b, 0], V[b, 1], V[b, 2], V[c, 0], V[c, 1], V[c, 2])
-            if d < best:
-                best = d
-        out[q] = best
-
-
 def _mesh_distance(V, F, C, reach):
     """Distance from each point of ``C`` to the mesh, exact where it is at most ``reach``
-    (``inf`` beyond): a k-d tree of the face centroids gives the candidates."""
-    cen = V[F].mean(axis=1)
-    grow = float(np.max(np.linalg.norm(V[F] - cen[:, None, :], axis=2))) if len(F) else 0.0
-    hits = cKDTree(cen).query_ball_point(C, reach + grow)
-    start = np.zeros(len(C) + 1, dtype=np.int64)
-    start[1:] = np.cumsum([len(h) for h in hits])
-    tris = np.fromiter((t for h in hits for t in h), dtype=np.int64, count=int(start[-1]))
-    out = np.empty(len(C))
-    _min_dist2(np.ascontiguousarray(C, dtype=np.float64), start, tris, V, F, out)
-    return np.sqrt(out)
+    (``inf`` beyond): :func:`segment_triangle_distance` of the points (as zero-length
+    segments) to the candidate triangles of :func:`_near_triangles`."""
+    out = np.full(len(C), np.inf)
+    if len(F) == 0 or len(C) == 0:
+        return out
+    cen, rmax = _centroids(V, F)
+    owner, tri = _near_triangles(cKDTree(cen), C, reach + rmax)
+    np.minimum.at(out, owner, segment_triangle_distance(C, C, V, F, owner, tri))
+    return out
 
 
 def _beyond_any_ball(V, F, r, samples, rem, ok, depth, full=False):
@@ -1007,7 +1003,7 @@ def verify(mesh, program: Program, tool_radius: float, n_samples: int = 200_000,
         With ``scallop``: search the ball positions at every reachable sample left with
         more than ``reach_depth`` (not only where the tangent ball, dropped, leaves more)
         and report, in ``summary["reachable"]["rest"]``, the p99.9 of the material above
-        the least any ball leaves (the program's own share) and how many reachable
+        the least the search finds (the program's own share) and how many reachable
         samples are left above ``scallop``. The pass/fail check does not change.
 
     Returns

@@ -53,9 +53,11 @@ to LinuxCNC's ``rs274 -g`` when it is installed. Columns:
   and ``uncut reach %``: the same over the interior samples that ``conformill verify``
   counts as reachable by a 3-axis ball (``summary["reachable"]``: tangent ball free, shank
   free, facing up, and some ball position brings the sample within h; uncut samples
-  excluded from the percentile and counted separately); ``excused``: samples the program
-  left above h that verify's tangent test keeps but for which the rest search finds no
-  ball within 1.2 h; ``p99.9 tangent``: the p99.9 with them (verify before session 10);
+  excluded from the percentile and counted separately; verify is given the limit 1.05 h
+  and the reach depth h); ``excused``: samples the program left above h that verify's
+  tangent test keeps but for which the rest search finds no ball within the limit 1.05 h
+  (a ball within 1.2 h before session 12); ``p99.9 tangent``: the p99.9 with them
+  (verify before session 10);
   ``p99.9 ball`` / ``uncut ball %``: this script's own, simpler test
   (:func:`_common.reachable_samples`: facing up, tangent ball penetrating the part by less
   than ``h``, no shank check), uncut samples counted as infinite in the percentile;
@@ -262,7 +264,7 @@ def measure(mesh, path: Path, r, h, e, samples, reach, safe_z):
 
     prog = read_gcode(path)
     t0 = time.perf_counter()
-    v = verify(mesh, prog, r, samples=samples, scallop=h, gouge=e, judge="reachable")
+    v = verify(mesh, prog, r, samples=samples, scallop=1.05 * h, reach_depth=h, gouge=e, judge="reachable")
     t_ver = time.perf_counter() - t0
     s = v.summary
     sel = v.interior & reach

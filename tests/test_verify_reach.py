@@ -156,14 +156,14 @@ def _groove_case(n=400):
 
 def test_reachable_judge_excuses_only_what_no_ball_can_reach():
     # Each excusal is checked against the exact rest of the groove: a sample is excused
-    # when no ball can bring it within 1.2 H (the margin for the search's upper bound),
-    # never when one can bring it within that (up to the search's resolution, 3e-4 mm).
+    # when no ball can bring it within the limit H, never when one can (up to the
+    # search's resolution, 3e-4 mm).
     from conformill.verify.gcode import read_gcode
-    from conformill.verify.simulate import _EXCUSE_MARGIN, unreachable_samples, verify
+    from conformill.verify.simulate import unreachable_samples, verify
 
     m, S, a, r = _groove_case()
     H = 0.02
-    lim = _EXCUSE_MARGIN * H
+    lim = H
     exact = _groove_rest(S.points, a, r)
     assert not unreachable_samples(S, m.V, r, H).any()  # the tangent test keeps them all
     assert (exact > lim + 3e-4).sum() >= 20 and (exact < H - 3e-4).sum() >= 200
@@ -182,6 +182,15 @@ def test_reachable_judge_excuses_only_what_no_ball_can_reach():
     left = res.remaining
     own = np.where(left > H, left - np.minimum(exact, left), left)
     assert abs(q["rest"]["p999_over_rest"] - np.percentile(own[res.reachable], 99.9)) < 5e-4
+    # the judged samples above H, counted by their rest (against the exact rest, up to
+    # the samples within the search's resolution of a band's edge)
+    above = res.reachable & (left > H)
+    bands = q["rest"]["above_limit_by_rest"]
+    assert sum(bands) == q["rest"]["above_limit"] == above.sum() and bands[0] > 0 and bands[2] > 0
+    e = exact[above]
+    for k, (lo, hi) in enumerate([(-1.0, 0.5 * H), (0.5 * H, 0.9 * H), (0.9 * H, 1.0)]):
+        near = (np.abs(e - lo) < 3e-4) | (np.abs(e - hi) < 3e-4)
+        assert abs(bands[k] - ((e >= lo) & (e < hi)).sum()) <= near.sum()
     # the search restricted to where the dropped tangent ball leaves more (without --rest)
     # excuses the same samples; without the reachable judge nothing is searched
     lean = verify(m, prog, r, samples=S, scallop=H, judge="reachable")
@@ -189,6 +198,30 @@ def test_reachable_judge_excuses_only_what_no_ball_can_reach():
     plain = verify(m, prog, r, samples=S, scallop=H)
     assert not plain.summary["reachable"]["searched"] and not plain.excused.any()
     assert plain.summary["reachable"]["samples"] == len(S)
+
+
+def test_reachable_judge_excuses_above_the_limit_not_the_reach_depth():
+    # With a limit above the reach depth (`plan --verify` and the benchmarks judge 1.05 H
+    # with a depth of H; 1.5 H here, for a wider band), a sample is excused where no ball
+    # meets the limit: the samples whose exact rest lies between H and the limit stay judged.
+    from conformill.verify.gcode import read_gcode
+    from conformill.verify.simulate import verify
+
+    m, S, a, r = _groove_case()
+    H = 0.02
+    exact = _groove_rest(S.points, a, r)
+    between = (exact > H + 3e-4) & (exact < 1.5 * H - 3e-4)
+    assert between.sum() >= 10
+    prog = read_gcode(_raster(m, r, half=9.5))
+    res = verify(m, prog, r, samples=S, scallop=1.5 * H, reach_depth=H, judge="reachable")
+    excused = res.excused
+    assert excused.sum() > 0 and res.summary["reachable"]["unconfirmed"] == 0
+    assert np.all(exact[excused] > 1.5 * H - 3e-4)
+    assert np.all(exact[~excused] <= 1.5 * H + 3e-4)
+    assert res.reachable[between].all()
+    # judged at H alone, the same samples are excused
+    low = verify(m, prog, r, samples=S, scallop=H, judge="reachable")
+    assert not low.reachable[between].any()
 
 
 def test_top_view_marks_what_fails_and_what_no_ball_can_reach(tmp_path):

@@ -89,15 +89,17 @@ def table(summary: dict) -> str:
         out.append("  (crease material no ball position removes is left out only with --judge reachable or --rest)")
     else:
         out.append(f"  of the samples the tangent ball reaches, {q['beyond_any_ball']} "
-                   f"({q['beyond_any_ball_per_mille']:.3g} per mille) are left above the reach depth and the "
-                   f"ball positions searched leave more than 1.2 times it; with them the reachable p99.9 would be "
+                   f"({q['beyond_any_ball_per_mille']:.3g} per mille) are left above the limit by every "
+                   f"ball position searched (no program can meet it there); with them the reachable p99.9 would be "
                    f"{_fmt(t['scallop']['p999'])}"
                    + (f"; {q['unconfirmed']} not excused: the best ball found does not touch the part"
                       if q["unconfirmed"] else ""))
     rest = q.get("rest")
     if rest is not None:
         out.append(f"rest material: above the least material any ball leaves, the program's own share is "
-                   f"p99.9 {_fmt(rest['p999_over_rest'])} ({rest['above_limit']} reachable samples above H)")
+                   f"p99.9 {_fmt(rest['p999_over_rest'])} ({rest['above_limit']} reachable samples above H; of them "
+                   f"{' / '.join(str(k) for k in rest['above_limit_by_rest'])} where the best ball found leaves "
+                   f"below H/2 / H/2 to 0.9 H / above 0.9 H)")
     g = summary
     if g["gouge_where"] is not None:
         x, y, z = g["gouge_where"]

@@ -17,8 +17,8 @@ sample is not a convex function of the centre near creases and steep walls, and 
 only the best coarse centre missed a better ball for 15 % of the samples it found beyond
 reach on igea (a search still wider and finer, 41 x 41 centres over +-0.6 r and 8 starts
 on 11 x 11 grids, found one for 29 of the 823 that this one and the single-start search
-both put above h; see :func:`conformill.verify.simulate.verify` for the margin that
-keeps such samples judged). The least value found is an upper bound of the true rest; it is exact up
+both put above h; ``verify`` therefore searches again with :data:`CONFIRM`, that wider
+search, before it excuses a sample). The least value found is an upper bound of the true rest; it is exact up
 to the last grid where the rest is of the order of a scallop height (the best ball then
 lies close to the tangent one), and can be far too large deep inside a pocket (the best
 ball beyond the search), where it is far above any scallop height anyway. ``D`` comes from the planner's drop-cutter
@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["rest_material", "tangent_rest"]
+__all__ = ["CONFIRM", "rest_material", "tangent_rest"]
 
 #: Half-width (units of ``r``) and size of the first grid of centres around the tangent one.
 _COARSE_SPAN, _COARSE_GRID = 0.4, 25
@@ -40,6 +40,12 @@ _STARTS = 8
 #: Half-widths of the refining grids around each start, in units of ``r``, and their size.
 _SPANS = (0.05, 0.0125, 0.003125, 0.00078125)
 _GRID = 9
+#: The second, wider and deeper search that ``verify`` runs where the first finds no ball
+#: within the limit, before it excuses a sample: 61 x 61 centres over +-0.8 r, the 16 best
+#: refined on 13 x 13 grids over +-0.06 r down to +-0.06 r / 1024. On igea (contour,
+#: h = 0.01 mm, limit 1.05 h) it finds a ball within the limit for 15 of the 582 samples
+#: the first search excuses; 81 x 81 centres over +-r with 32 starts finds one for 4 more.
+CONFIRM = {"starts": 16, "coarse": (0.8, 61), "refine": (13, tuple(0.06 / 4 ** k for k in range(6)))}
 
 
 def _ray_gap(p, n, C, r):
@@ -68,7 +74,7 @@ def tangent_rest(cutter, P, N) -> np.ndarray:
 
 
 def rest_material(cutter, P, N, chunk: int = 1000, centres: bool = False, starts: int = _STARTS,
-                  coarse: tuple = (_COARSE_SPAN, _COARSE_GRID)):
+                  coarse: tuple = (_COARSE_SPAN, _COARSE_GRID), refine: tuple = (_GRID, _SPANS)):
     """Least material (mm) along ``N`` at ``P`` over ball centres on the drop surface near the tangent one.
 
     Parameters
@@ -84,6 +90,8 @@ def rest_material(cutter, P, N, chunk: int = 1000, centres: bool = False, starts
     starts, coarse
         How many centres of the first grid are refined, and that grid's half-width (units
         of ``r``) and size: a cheaper search (e.g. ``1, (0.2, 9)``) misses more.
+    refine
+        Size of the refining grids and their half-widths (units of ``r``), coarsest first.
 
     Returns
     -------
@@ -98,7 +106,7 @@ def rest_material(cutter, P, N, chunk: int = 1000, centres: bool = False, starts
         g = np.linspace(-1.0, 1.0, n)
         return np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
 
-    coarse, fine = coarse[0] * r * grid(int(coarse[1])), grid(_GRID)
+    coarse, fine, spans = coarse[0] * r * grid(int(coarse[1])), grid(int(refine[0])), tuple(refine[1])
     out = np.full(len(P), np.inf)
     where = np.full((len(P), 3), np.nan)
     for a in range(0, len(P), chunk):
@@ -113,7 +121,7 @@ def rest_material(cutter, P, N, chunk: int = 1000, centres: bool = False, starts
         m = max(1, min(int(starts), t.shape[1]))
         start = np.argsort(t, axis=1, kind="stable")[:, :m]
         S, St = C[rows, start], t[rows, start]  # (k, m, 3), (k, m)
-        for span in _SPANS:
+        for span in spans:
             live = np.flatnonzero(St.min(axis=1) > 0.0)  # a sample inside a ball is done
             if live.size == 0:
                 break

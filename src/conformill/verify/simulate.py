@@ -28,10 +28,11 @@ The material simulation shares no code with the planner (``conformill.param``,
 ``geometry``, ``planning``, ``patterns``, ``cutter``, ``mapping``) so that it can catch its
 mistakes. One step uses the planner's drop-cutter (through :mod:`conformill.verify.rest`):
 with ``judge="reachable"`` (or ``rest``), the search for samples that no ball position
-brings within the reach depth, which ``verify`` leaves out of the reachable set. It only
-runs where the program left more than that depth, excuses a sample only where the least
-material it finds exceeds the depth by 20 %, and checks with this module's own geometry
-that the best ball it found touches the part (a uniformly biased drop-cutter excuses
+brings within the scallop limit (or the reach depth, if larger), which ``verify`` leaves
+out of the reachable set. It only runs where the program left more than the reach depth,
+excuses a sample only where a second, wider and deeper search finds no ball within the
+limit either, and checks with this module's own geometry that the best ball it found
+touches the part (a uniformly biased drop-cutter excuses
 nothing; one that is wrong only near other centres could hide a better ball).
 """
 
@@ -711,8 +712,8 @@ class VerifyResult:
         The interior samples the reachable judge checks (``summary["reachable"]``; see
         :func:`verify` for the two tests that build it).
     excused : (n,) bool
-        Samples the tangent test keeps but that the rest search finds no ball for within
-        the reach depth (with its margin); left out of ``reachable``. All False unless
+        Samples the tangent test keeps but for which the rest search finds no ball within
+        the scallop limit (or the reach depth, if larger); left out of ``reachable``. All False unless
         ``judge="reachable"`` or ``rest``.
     hit_line, gouge_line : (n,) int64
         Source line of the move that cut each sample / that gouged it deepest (-1: none).
@@ -765,11 +766,11 @@ def _stats(rem, gouge, P, gline, H, gouge_tol):
 #: How far (mm) the independently measured distance from a rest-search centre to the mesh
 #: may exceed ``r`` before the drop height there is taken as wrong (see :func:`_beyond_any_ball`).
 _TOUCH_TOL = 1e-6
-#: A sample is excused only where the least material the rest search finds exceeds the
-#: reach depth by this factor: the search's value is an upper bound of the true rest, and
-#: on igea a wider search found a ball within h for 2 % of the samples the search put
-#: above 1.2 h (against 15 % above h with a single-start search).
-_EXCUSE_MARGIN = 1.2
+#: A sample is excused only where the least material found exceeds the limit (no program
+#: can meet it there). The first search's value is an upper bound of the true rest, so a
+#: sample it puts above the limit is searched again, wider and deeper
+#: (:data:`conformill.verify.rest.CONFIRM`), and excused only if that search finds no ball
+#: within the limit either.
 
 
 def _mesh_distance(V, F, C, reach):
@@ -785,35 +786,37 @@ def _mesh_distance(V, F, C, reach):
     return out
 
 
-def _beyond_any_ball(V, F, r, samples, rem, ok, depth, full=False):
-    """Samples of ``ok`` left with more than ``depth`` that the ball positions searched
-    cannot bring within ``_EXCUSE_MARGIN * depth``.
+def _beyond_any_ball(V, F, r, samples, rem, ok, depth, limit, full=False):
+    """Samples of ``ok`` left with more than ``depth`` that no ball position searched
+    brings within ``limit``.
 
     A sample the program leaves within ``depth`` is reachable (the program's own ball did
     it). At the others the ball positions reachable from above are searched
     (:func:`conformill.verify.rest.rest_material`, centres on the drop surface of the
     planner's drop-cutter). The search's least value is an upper bound of the true rest,
-    so a sample is excused only where it exceeds the depth by the margin. The centres
-    come from planner code, so the best one found is checked independently: the ball
-    there must touch the part, its distance to the mesh (exact, this module's own
-    point-triangle distance) at most ``r + 1e-6`` mm. That catches a drop height that is
-    too high at that centre (a uniformly biased drop-cutter excuses nothing), but not one
-    that is too high only at other centres and hides a better ball there.
-    Without ``full``, the search runs only where the tangent ball, dropped, leaves more
-    than ``depth`` (elsewhere ``rest`` holds that ball's value, an upper bound).
+    so a sample it puts above ``limit`` is searched again with the wider and deeper
+    :data:`conformill.verify.rest.CONFIRM`, and is excused only where neither finds a
+    ball within ``limit``: no program can meet the limit there. The centres come from
+    planner code, so the best one found is checked independently: the ball there must
+    touch the part, its distance to the mesh (exact, this module's own point-triangle
+    distance) at most ``r + 1e-6`` mm. That catches a drop height that is too high at that
+    centre (a uniformly biased drop-cutter excuses nothing), but not one that is too high
+    only at other centres and hides a better ball there.
+    Without ``full``, the searches run only where the tangent ball, dropped, leaves more
+    than ``limit`` (elsewhere ``rest`` holds that ball's value, an upper bound).
 
     Returns
     -------
     beyond : (n,) bool
-        The excused samples (the search's value above ``_EXCUSE_MARGIN * depth``, confirmed).
+        The excused samples (both searches' least value above ``limit``, confirmed).
     rest : (n,) float64
         The least material found at each searched sample (``nan`` where not searched).
     unconfirmed : int
-        Samples the search would have excused whose best ball does not touch the part
+        Samples the searches would have excused whose best ball does not touch the part
         (or lies off it).
     """
     from conformill.cutter import BallCutter
-    from conformill.verify.rest import rest_material, tangent_rest
+    from conformill.verify.rest import CONFIRM, rest_material, tangent_rest
 
     beyond = np.zeros(len(rem), dtype=bool)
     rest = np.full(len(rem), np.nan)
@@ -823,15 +826,21 @@ def _beyond_any_ball(V, F, r, samples, rem, ok, depth, full=False):
     cutter = BallCutter(V, F, r)
     if not full:
         # the tangent ball dropped onto the part is one of the searched positions: where it
-        # leaves at most ``depth`` the sample is reachable (one drop instead of a search)
+        # leaves at most ``limit`` the sample cannot be excused (one drop instead of a search)
         t0 = tangent_rest(cutter, samples.points[cand], samples.normals[cand])
         rest[cand] = t0
-        cand = cand[t0 > depth]
+        cand = cand[t0 > limit]
         if cand.size == 0:
             return beyond, rest, 0
     t, C = rest_material(cutter, samples.points[cand], samples.normals[cand], centres=True)
+    over = np.flatnonzero(t > limit)
+    if over.size:
+        t2, C2 = rest_material(cutter, samples.points[cand[over]], samples.normals[cand[over]], centres=True,
+                               **CONFIRM)
+        better = t2 < t[over]
+        t[over[better]], C[over[better]] = t2[better], C2[better]
+        over = over[t[over] > limit]
     rest[cand] = t
-    over = np.flatnonzero(t > _EXCUSE_MARGIN * depth)
     if over.size == 0:
         return beyond, rest, 0
     Co = C[over]
@@ -847,10 +856,18 @@ def _beyond_any_ball(V, F, r, samples, rem, ok, depth, full=False):
 
 
 def _rest_figures(rem, rest, ok, H):
-    """The program's own share above the rest at the judged samples (see ``verify``)."""
+    """The program's own share above the rest at the judged samples (see ``verify``), and
+    the judged samples above ``H`` counted by their rest: below ``H / 2``, from ``H / 2``
+    to ``0.9 H`` and above ``0.9 H`` (the rim of what no ball removes). Samples left
+    within the reach depth are not searched (only a reach depth above ``H`` leaves any of
+    them above ``H``) and are in no band."""
     fin = ok & np.isfinite(rem)
     above = fin & (rem > H)
-    out = {"above_limit": int(above.sum()), "p999_over_rest": math.nan}
+    t_above = rest[above]
+    t_above = t_above[~np.isnan(t_above)]
+    bands = [int((t_above < 0.5 * H).sum()), int(((t_above >= 0.5 * H) & (t_above <= 0.9 * H)).sum()),
+             int((t_above > 0.9 * H).sum())]
+    out = {"above_limit": int(above.sum()), "above_limit_by_rest": bands, "p999_over_rest": math.nan}
     if fin.any():
         own = rem.copy()
         t = np.where(np.isfinite(rest), rest, 0.0)
@@ -989,9 +1006,10 @@ def verify(mesh, program: Program, tool_radius: float, n_samples: int = 200_000,
         removes undercuts and pockets tighter than the ball; then, at the samples left
         with more than ``reach_depth``, :func:`_beyond_any_ball` searches the ball
         positions reachable from above and removes those for which the least material
-        found exceeds 1.2 ``reach_depth`` (creases between facets, which the first test,
-        judged against points, lets through), the best ball checked against this
-        module's own distance to the mesh. The second step runs only with
+        found exceeds the larger of ``scallop`` and ``reach_depth`` (creases between
+        facets, which the first test, judged against points, lets through: no program
+        can meet the limit there), confirmed by a second, wider and deeper search and
+        the best ball checked against this module's own distance to the mesh. The second step runs only with
         ``judge="reachable"`` or ``rest``. The gouge limit is always checked on all
         interior samples. All figure sets are reported either way;
         ``summary["reachable"]["tangent_test"]`` holds the figures of the first step
@@ -1049,7 +1067,8 @@ def verify(mesh, program: Program, tool_radius: float, n_samples: int = 200_000,
     tangent_ok = interior & ~blocked
     searched = judge == "reachable" or bool(rest and scallop is not None)
     if searched:
-        beyond, rest_t, unconfirmed = _beyond_any_ball(V, F, r, samples, rem, tangent_ok, depth,
+        limit = max(depth, scallop) if scallop is not None else depth
+        beyond, rest_t, unconfirmed = _beyond_any_ball(V, F, r, samples, rem, tangent_ok, depth, limit,
                                                        full=bool(rest and scallop is not None))
     else:
         beyond, rest_t, unconfirmed = np.zeros(len(rem), dtype=bool), np.full(len(rem), np.nan), 0

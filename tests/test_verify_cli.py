@@ -85,6 +85,10 @@ def test_bad_input_exit_2(files, tmp_path, capsys):
     assert main(["verify", str(mesh), str(nc), "-r", "0"]) == 2
     assert "--tool-radius" in capsys.readouterr().err
     assert main(["verify", str(tmp_path / "none.ply"), str(nc), "-r", "3"]) == 2
+    # a program file that is not there is named as such (not read as G-code text)
+    assert main(["verify", str(mesh), str(tmp_path / "none.nc"), "-r", "3"]) == 2
+    err = capsys.readouterr().err
+    assert f"G-code file {tmp_path / 'none.nc'} does not exist" in err and "Traceback" not in err
     assert main(["verify", str(mesh), str(nc), "-r", "3", "--report", str(tmp_path / "no" / "r.json")]) == 2
     assert "does not exist" in capsys.readouterr().err
     assert main(["verify", str(mesh), str(nc), "-r", "3", "--samples", "0"]) == 2

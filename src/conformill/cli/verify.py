@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 import sys
 import time
+from pathlib import Path
 
 from conformill.errors import ConformillError
 
@@ -127,6 +128,8 @@ def run(args) -> int:
     if args.rest and args.scallop is None:
         raise ConformillError("--rest needs --scallop (the rest is searched where more than H is left)")
     check_writable(args.report, args.plot)
+    if args.program != "-" and not Path(args.program).is_file():
+        raise ConformillError(f"G-code file {args.program} does not exist (or is not a file)")
 
     from conformill.mesh.io import read_mesh
     from conformill.verify.gcode import read_gcode
@@ -134,7 +137,7 @@ def run(args) -> int:
 
     t0 = time.perf_counter()
     mesh = read_mesh(args.mesh, scale=args.scale, validate=False)
-    program = read_gcode(args.program if args.program != "-" else sys.stdin.read(), chord_tol=args.chord_tol)
+    program = read_gcode(Path(args.program) if args.program != "-" else sys.stdin.read(), chord_tol=args.chord_tol)
     bar = None
     quiet = getattr(args, "quiet", False)
     if not quiet and sys.stderr.isatty():

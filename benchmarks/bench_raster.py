@@ -52,9 +52,9 @@ to LinuxCNC's ``rs274 -g`` when it is installed. Columns:
   from the boundary), as ``conformill verify`` reports them; ``p99.9 reach``, ``p99 reach``
   and ``uncut reach %``: the same over the interior samples that ``conformill verify``
   counts as reachable by a 3-axis ball (``summary["reachable"]``: tangent ball free, shank
-  free, facing up, and some ball position brings the sample within h; uncut samples
-  excluded from the percentile and counted separately; verify is given the limit 1.05 h
-  and the reach depth h); ``excused``: samples the program left above h that verify's
+  free, facing up, and some ball position brings the sample within the limit 1.05 h;
+  uncut samples excluded from the percentile and counted separately; verify is given the
+  limit 1.05 h and the reach depth h); ``excused``: samples the program left above 1.05 h that verify's
   tangent test keeps but for which the rest search finds no ball within the limit 1.05 h
   (a ball within 1.2 h before session 12); ``p99.9 tangent``: the p99.9 with them
   (verify before session 10);

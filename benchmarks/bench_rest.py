@@ -72,7 +72,7 @@ def main(argv=None):
     print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for prog in args.programs:
         t = time.perf_counter()
-        res = verify(mesh, read_gcode(prog), r, n_samples=args.samples, seed=0, scallop=1.05 * h,
+        res = verify(mesh, read_gcode(Path(prog)), r, n_samples=args.samples, seed=0, scallop=1.05 * h,
                      reach_depth=h, judge="reachable", rest=True)
         q = res.summary["reachable"]
         T = q["tangent_test"]

@@ -201,9 +201,9 @@ def test_reachable_judge_excuses_only_what_no_ball_can_reach():
 
 
 def test_reachable_judge_excuses_above_the_limit_not_the_reach_depth():
-    # With a limit above the reach depth (`plan --verify` and the benchmarks judge 1.05 H
-    # with a depth of H; 1.5 H here, for a wider band), a sample is excused where no ball
-    # meets the limit: the samples whose exact rest lies between H and the limit stay judged.
+    # With a limit above the reach depth (the raster and rest benchmarks judge 1.05 H with
+    # a depth of H; 1.5 H here, for a wider band), a sample is excused where no ball meets
+    # the limit: the samples whose exact rest lies between H and the limit stay judged.
     from conformill.verify.gcode import read_gcode
     from conformill.verify.simulate import verify
 
@@ -222,6 +222,34 @@ def test_reachable_judge_excuses_above_the_limit_not_the_reach_depth():
     # judged at H alone, the same samples are excused
     low = verify(m, prog, r, samples=S, scallop=H, judge="reachable")
     assert not low.reachable[between].any()
+
+
+def test_a_second_search_confirms_each_excusal(monkeypatch):
+    # With a first search too narrow to find the ball in the groove, its upper bound puts
+    # samples that a ball can bring within H above H; the second search (rest.CONFIRM)
+    # finds that ball, so the excusals still follow the exact rest. Made as weak as the
+    # first, it lets wrong excusals through: the test can tell.
+    from conformill.verify import rest
+    from conformill.verify.gcode import read_gcode
+    from conformill.verify.simulate import verify
+
+    m, S, a, r = _groove_case()
+    H = 0.02
+    exact = _groove_rest(S.points, a, r)
+    prog = read_gcode(_raster(m, r, half=9.5))
+    chunk, centres, _, _, _ = rest.rest_material.__defaults__
+    weak = {"starts": 1, "coarse": (0.02, 3), "refine": (3, (0.005,))}
+    monkeypatch.setattr(rest.rest_material, "__defaults__", (chunk, centres, weak["starts"], weak["coarse"],
+                                                             weak["refine"]))
+    res = verify(m, prog, r, samples=S, scallop=H, judge="reachable", rest=True)
+    assert np.all(exact[res.excused] > H - 3e-4) and np.all(exact[~res.excused] <= H + 3e-4)
+    # every judged sample above H has a searched rest, and falls in one band
+    above = res.reachable & (res.remaining > H)
+    assert sum(res.summary["reachable"]["rest"]["above_limit_by_rest"]) == above.sum()
+    monkeypatch.setattr(rest, "CONFIRM", weak)
+    bad = verify(m, prog, r, samples=S, scallop=H, judge="reachable")
+    wrong = bad.excused & (exact < H - 3e-4)
+    assert wrong.sum() >= 10
 
 
 def test_top_view_marks_what_fails_and_what_no_ball_can_reach(tmp_path):

@@ -128,8 +128,8 @@ def run(args) -> int:
     if args.rest and args.scallop is None:
         raise ConformillError("--rest needs --scallop (the rest is searched where more than H is left)")
     check_writable(args.report, args.plot)
-    if args.program != "-" and not Path(args.program).is_file():
-        raise ConformillError(f"G-code file {args.program} does not exist (or is not a file)")
+    if args.program != "-" and (not Path(args.program).exists() or Path(args.program).is_dir()):
+        raise ConformillError(f"G-code file {args.program} does not exist (or is a folder)")
 
     from conformill.mesh.io import read_mesh
     from conformill.verify.gcode import read_gcode

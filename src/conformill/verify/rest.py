@@ -17,8 +17,8 @@ sample is not a convex function of the centre near creases and steep walls, and 
 only the best coarse centre missed a better ball for 15 % of the samples it found beyond
 reach on igea (a search still wider and finer, 41 x 41 centres over +-0.6 r and 8 starts
 on 11 x 11 grids, found one for 29 of the 823 that this one and the single-start search
-both put above h; ``verify`` therefore searches again with :data:`CONFIRM`, that wider
-search, before it excuses a sample). The least value found is an upper bound of the true rest; it is exact up
+both put above h; ``verify`` therefore searches again, with the still wider and deeper
+:data:`CONFIRM`, before it excuses a sample). The least value found is an upper bound of the true rest; it is exact up
 to the last grid where the rest is of the order of a scallop height (the best ball then
 lies close to the tangent one), and can be far too large deep inside a pocket (the best
 ball beyond the search), where it is far above any scallop height anyway. ``D`` comes from the planner's drop-cutter

@@ -766,11 +766,11 @@ def _stats(rem, gouge, P, gline, H, gouge_tol):
 #: How far (mm) the independently measured distance from a rest-search centre to the mesh
 #: may exceed ``r`` before the drop height there is taken as wrong (see :func:`_beyond_any_ball`).
 _TOUCH_TOL = 1e-6
-#: A sample is excused only where the least material found exceeds the limit (no program
-#: can meet it there). The first search's value is an upper bound of the true rest, so a
-#: sample it puts above the limit is searched again, wider and deeper
-#: (:data:`conformill.verify.rest.CONFIRM`), and excused only if that search finds no ball
-#: within the limit either.
+# A sample is excused only where the least material found exceeds the limit (no program
+# can meet it there). The first search's value is an upper bound of the true rest, so a
+# sample it puts above the limit is searched again, wider and deeper
+# (conformill.verify.rest.CONFIRM), and excused only if that search finds no ball within
+# the limit either (see _beyond_any_ball).
 
 
 def _mesh_distance(V, F, C, reach):
@@ -787,11 +787,12 @@ def _mesh_distance(V, F, C, reach):
 
 
 def _beyond_any_ball(V, F, r, samples, rem, ok, depth, limit, full=False):
-    """Samples of ``ok`` left with more than ``depth`` that no ball position searched
+    """Samples of ``ok`` left with more than ``limit`` that no ball position searched
     brings within ``limit``.
 
-    A sample the program leaves within ``depth`` is reachable (the program's own ball did
-    it). At the others the ball positions reachable from above are searched
+    A sample the program leaves within ``limit`` is not excused (the program's own ball
+    did it). At the samples left with more than ``depth`` (at most ``limit``) the ball
+    positions reachable from above are searched
     (:func:`conformill.verify.rest.rest_material`, centres on the drop surface of the
     planner's drop-cutter). The search's least value is an upper bound of the true rest,
     so a sample it puts above ``limit`` is searched again with the wider and deeper
@@ -833,7 +834,7 @@ def _beyond_any_ball(V, F, r, samples, rem, ok, depth, limit, full=False):
         if cand.size == 0:
             return beyond, rest, 0
     t, C = rest_material(cutter, samples.points[cand], samples.normals[cand], centres=True)
-    over = np.flatnonzero(t > limit)
+    over = np.flatnonzero((t > limit) & ~(rem[cand] <= limit))
     if over.size:
         t2, C2 = rest_material(cutter, samples.points[cand[over]], samples.normals[cand[over]], centres=True,
                                **CONFIRM)
@@ -858,13 +859,10 @@ def _beyond_any_ball(V, F, r, samples, rem, ok, depth, limit, full=False):
 def _rest_figures(rem, rest, ok, H):
     """The program's own share above the rest at the judged samples (see ``verify``), and
     the judged samples above ``H`` counted by their rest: below ``H / 2``, from ``H / 2``
-    to ``0.9 H`` and above ``0.9 H`` (the rim of what no ball removes). Samples left
-    within the reach depth are not searched (only a reach depth above ``H`` leaves any of
-    them above ``H``) and are in no band."""
+    to ``0.9 H`` and above ``0.9 H`` (the rim of what no ball removes)."""
     fin = ok & np.isfinite(rem)
     above = fin & (rem > H)
-    t_above = rest[above]
-    t_above = t_above[~np.isnan(t_above)]
+    t_above = rest[above]  # every judged sample above H was searched (``verify``)
     bands = [int((t_above < 0.5 * H).sum()), int(((t_above >= 0.5 * H) & (t_above <= 0.9 * H)).sum()),
              int((t_above > 0.9 * H).sum())]
     out = {"above_limit": int(above.sum()), "above_limit_by_rest": bands, "p999_over_rest": math.nan}
@@ -1000,16 +998,17 @@ def verify(mesh, program: Program, tool_radius: float, n_samples: int = 200_000,
         Called with the number of samples done after each chunk.
     judge : {"interior", "reachable"}
         Which samples the scallop and uncut limits are checked on: all interior samples
-        (default), or only those some 3-axis ball position can bring within
-        ``reach_depth``. That set is built in two steps: :func:`unreachable_samples` (the
-        ball touching the sample along its normal, and its shank, tested against points)
-        removes undercuts and pockets tighter than the ball; then, at the samples left
-        with more than ``reach_depth``, :func:`_beyond_any_ball` searches the ball
-        positions reachable from above and removes those for which the least material
-        found exceeds the larger of ``scallop`` and ``reach_depth`` (creases between
-        facets, which the first test, judged against points, lets through: no program
-        can meet the limit there), confirmed by a second, wider and deeper search and
-        the best ball checked against this module's own distance to the mesh. The second step runs only with
+        (default), or only those some 3-axis ball position can bring close enough. That
+        set is built in two steps: :func:`unreachable_samples` (the ball touching the
+        sample along its normal, and its shank, tested against points, with a leeway of
+        ``reach_depth``) removes undercuts and pockets tighter than the ball; then, at
+        the samples left with more than the larger of ``scallop`` and ``reach_depth``
+        (the limit), :func:`_beyond_any_ball` searches the ball positions reachable from
+        above and removes those for which the least material found exceeds the limit
+        (creases between facets, which the first test, judged against points, lets
+        through: no program can meet the limit there), confirmed by a second, wider and
+        deeper search, the best ball checked against this module's own distance to the
+        mesh. The second step runs only with
         ``judge="reachable"`` or ``rest``. The gouge limit is always checked on all
         interior samples. All figure sets are reported either way;
         ``summary["reachable"]["tangent_test"]`` holds the figures of the first step
@@ -1021,8 +1020,10 @@ def verify(mesh, program: Program, tool_radius: float, n_samples: int = 200_000,
         With ``scallop``: search the ball positions at every reachable sample left with
         more than ``reach_depth`` (not only where the tangent ball, dropped, leaves more)
         and report, in ``summary["reachable"]["rest"]``, the p99.9 of the material above
-        the least the search finds (the program's own share) and how many reachable
-        samples are left above ``scallop``. The pass/fail check does not change.
+        the least the search finds (the program's own share), how many reachable
+        samples are left above ``scallop`` (``above_limit``), and how many of those have
+        a rest below ``scallop / 2``, up to ``0.9 scallop`` and above that
+        (``above_limit_by_rest``). The pass/fail check does not change.
 
     Returns
     -------
@@ -1068,7 +1069,10 @@ def verify(mesh, program: Program, tool_radius: float, n_samples: int = 200_000,
     searched = judge == "reachable" or bool(rest and scallop is not None)
     if searched:
         limit = max(depth, scallop) if scallop is not None else depth
-        beyond, rest_t, unconfirmed = _beyond_any_ball(V, F, r, samples, rem, tangent_ok, depth, limit,
+        # searched from the smaller of the two, so that --rest knows the rest of every
+        # judged sample above the limit; only samples left above ``limit`` are excused
+        low = min(depth, scallop) if scallop is not None else depth
+        beyond, rest_t, unconfirmed = _beyond_any_ball(V, F, r, samples, rem, tangent_ok, low, limit,
                                                        full=bool(rest and scallop is not None))
     else:
         beyond, rest_t, unconfirmed = np.zeros(len(rem), dtype=bool), np.full(len(rem), np.nan), 0

@@ -29,9 +29,10 @@ The material simulation shares no code with the planner (``conformill.param``,
 mistakes. One step uses the planner's drop-cutter (through :mod:`conformill.verify.rest`):
 with ``judge="reachable"`` (or ``rest``), the search for samples that no ball position
 brings within the scallop limit (or the reach depth, if larger), which ``verify`` leaves
-out of the reachable set. It only runs where the program left more than the reach depth,
-excuses a sample only where a second, wider and deeper search finds no ball within the
-limit either, and checks with this module's own geometry that the best ball it found
+out of the reachable set. It only runs where the program left more than the reach depth
+(or the limit, if smaller), excuses only samples the program left above the limit, and
+only where a second, wider and deeper search finds no ball within the limit either, and
+checks with this module's own geometry that the best ball it found
 touches the part (a uniformly biased drop-cutter excuses
 nothing; one that is wrong only near other centres could hide a better ball).
 """

@@ -792,8 +792,9 @@ def _beyond_any_ball(V, F, r, samples, rem, ok, depth, limit, full=False):
     brings within ``limit``.
 
     A sample the program leaves within ``limit`` is not excused (the program's own ball
-    did it). At the samples left with more than ``depth`` (at most ``limit``) the ball
-    positions reachable from above are searched
+    did it). At the samples left with more than ``limit`` (with ``full``, more than
+    ``depth``, at most ``limit``, so that ``rest`` covers them too) the ball positions
+    reachable from above are searched
     (:func:`conformill.verify.rest.rest_material`, centres on the drop surface of the
     planner's drop-cutter). The search's least value is an upper bound of the true rest,
     so a sample it puts above ``limit`` is searched again with the wider and deeper
@@ -805,7 +806,8 @@ def _beyond_any_ball(V, F, r, samples, rem, ok, depth, limit, full=False):
     centre (a uniformly biased drop-cutter excuses nothing), but not one that is too high
     only at other centres and hides a better ball there.
     Without ``full``, the searches run only where the tangent ball, dropped, leaves more
-    than ``limit`` (elsewhere ``rest`` holds that ball's value, an upper bound).
+    than ``limit`` (elsewhere ``rest`` holds that ball's value, an upper bound, at the
+    samples left above ``limit``).
 
     Returns
     -------
@@ -822,7 +824,8 @@ def _beyond_any_ball(V, F, r, samples, rem, ok, depth, limit, full=False):
 
     beyond = np.zeros(len(rem), dtype=bool)
     rest = np.full(len(rem), np.nan)
-    cand = np.flatnonzero(ok & ~(rem <= depth))  # uncut samples (inf) too
+    # uncut samples (inf) too; only ``full`` needs the rest where no sample can be excused
+    cand = np.flatnonzero(ok & ~(rem <= (depth if full else limit)))
     if cand.size == 0:
         return beyond, rest, 0
     cutter = BallCutter(V, F, r)

@@ -548,6 +548,101 @@ class TestRefine:
             cut.refine(np.zeros((2, 3)), 0.0)
 
 
+# ----------------------------------------------------------------------------- settle (float above D)
+
+
+def _v_groove(a_deg=30.0, half=12.0, step=0.25):
+    """A V-groove z = |x| tan(a) on a grid with a vertex row on the crease x = 0."""
+    x = np.arange(-half, half + 1e-9, step)
+    y = np.arange(-half, half + 1e-9, 2 * step)
+    X, Y = np.meshgrid(x, y)
+    V = np.column_stack([X.ravel(), Y.ravel(), np.abs(X.ravel()) * np.tan(np.radians(a_deg))])
+    nx = len(x)
+    i, j = np.meshgrid(np.arange(nx - 1), np.arange(len(y) - 1))
+    v0 = (j * nx + i).ravel()
+    F = np.vstack([np.column_stack([v0, v0 + 1, v0 + nx + 1]), np.column_stack([v0, v0 + nx + 1, v0 + nx])])
+    return V, F.astype(np.int64)
+
+
+def _max_float(cut, P, n=64):
+    """Largest height of the moves of ``P`` above the drop surface (``n`` points per move)."""
+    t = np.arange(1, n) / n
+    Q = P[:-1, None, :] + t[None, :, None] * np.diff(P, axis=0)[:, None, :]
+    D = cut.drop(Q[:, :, :2].reshape(-1, 2)).reshape(Q.shape[:2])
+    return float(np.max(Q[:, :, 2] - D))
+
+
+class TestSettle:
+    def test_v_groove_crease_in_one_point(self):
+        # The ball rests on one wall of z = |x| tan(a): D(x) = |x| tan(a) + r / cos(a), a V
+        # with its crease at x = 0 where the ball sits wedged. A move from x = -1 to 1.5
+        # floats 1.2 tan(a) above it there; the crease is found exactly (the lines through
+        # the probes on each wall meet on it), one point, and nothing floats any more.
+        a = np.radians(30.0)
+        V, F = _v_groove()
+        cut = BallCutter(V, F, R_BALL)
+        x = np.array([-1.0, 1.5])
+        P = np.column_stack([x, [2.0, 2.0], np.abs(x) * np.tan(a) + R_BALL / np.cos(a)])
+        np.testing.assert_allclose(cut.drop(P[:, :2]), P[:, 2], atol=1e-12)
+        assert _max_float(cut, P, n=65) == pytest.approx(1.2 * np.tan(a), rel=1e-9)  # x = 0 is the 26th point
+        Q, n = cut.settle(P, 0.005)
+        assert n == 1 and len(Q) == 3
+        np.testing.assert_array_equal(Q[[0, 2]], P)
+        np.testing.assert_allclose(Q[1], [0.0, 2.0, R_BALL / np.cos(a)], atol=1e-9)
+        assert _max_float(cut, Q) <= 1e-9
+
+    @pytest.mark.parametrize("tol", [0.01, 0.002])
+    def test_trough_floats_at_most_tol(self, tol):
+        # a trough of radius 12 (wider than the ball): D is a circle of radius 8, and a chord
+        # of length l floats l^2 / 64 above it; zigzag rows across it with 3 mm steps
+        m = syn.cylinder_patch(R=12.0, length=30.0, half_angle=0.8, spacing=0.5, concave=True)
+        cut = BallCutter(m.V, m.F, R_BALL)
+        y = np.arange(-4.5, 4.51, 3.0)
+        xy = np.vstack([np.column_stack([np.full_like(y, x), y if k % 2 == 0 else y[::-1]])
+                        for k, x in enumerate((-6.0, -2.0, 2.0))])
+        P = np.column_stack([xy, cut.drop(xy)])
+        assert _max_float(cut, P) > 0.1
+        Q, n = cut.settle(P, tol, max_iter=20)
+        assert n == len(Q) - len(P) > 0 and _is_subsequence(P, Q)
+        np.testing.assert_allclose(cut.drop(Q[:, :2]), Q[:, 2], atol=1e-9)  # inserted points on D
+        assert _max_float(cut, Q) <= tol
+        # the default (three rounds) stops earlier but has lowered every move
+        Q3, _ = cut.settle(P, tol)
+        assert _max_float(cut, Q3) < 0.25 * _max_float(cut, P)
+
+    def test_plane_and_dome_need_nothing(self):
+        # on a plane no move floats; over a dome every chord lies below D (refine's side)
+        for m in (syn.plane(size=50.0, spacing=5.0, jitter=0.2, z=1.0), syn.sphere_cap(R=30.0, radius_xy=20.0)):
+            cut = BallCutter(m.V, m.F, R_BALL)
+            xy = np.array([[-12.0, -11], [13, 12], [12, -13], [-1, 0.5]])
+            P = np.column_stack([xy, cut.drop(xy)])
+            Q, n = cut.settle(P, 0.001)
+            assert n == 0
+            np.testing.assert_array_equal(Q, P)
+
+    def test_short_inputs_and_bad_arguments(self):
+        m = syn.plane(size=20.0, spacing=5.0)
+        cut = BallCutter(m.V, m.F, R_BALL)
+        Q, n = cut.settle(np.array([[0.0, 0.0, 4.0]]), 0.01)
+        assert n == 0 and Q.shape == (1, 3)
+        with pytest.raises(PlanningError, match="settle tolerance must be positive"):
+            cut.settle(np.zeros((2, 3)), 0.0)
+        with pytest.raises(PlanningError, match="at least one probe"):
+            cut.settle(np.zeros((2, 3)), 0.01, probes=0)
+        with pytest.raises(PlanningError, match="non-finite"):
+            cut.settle(np.array([[0.0, 0.0, np.nan], [1.0, 0.0, 4.0]]), 0.01)
+
+    def test_reaches_agrees_with_the_drop(self):
+        m = syn.freeform_patch(spacing=2.0, jitter=0.3)
+        cut = BallCutter(m.V, m.F, 3.0)
+        xy = np.random.default_rng(5).uniform(-45, 45, (4000, 2))
+        D = cut.drop(xy)
+        z = D + np.random.default_rng(6).uniform(-0.01, 0.01, len(xy))
+        z[~np.isfinite(D)] = 0.0
+        far = np.abs(z - D) > 1e-6  # away from the tie
+        np.testing.assert_array_equal(cut._reaches(xy, z)[far], (D >= z)[far])
+
+
 def test_tip_is_centre_minus_r():
     m = syn.plane(size=20.0, spacing=5.0)
     cut = BallCutter(m.V, m.F, 2.5)

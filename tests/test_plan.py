@@ -81,6 +81,8 @@ def test_adjacent_paths_never_farther_than_allowed():
         (dict(tool_radius=float("nan")), "radius"),
         (dict(pattern="raster"), "pattern"),
         (dict(feed=0.0), "feed"),
+        (dict(settle=-0.1), "settle"),
+        (dict(settle=float("nan")), "settle"),
     ],
 )
 def test_bad_job_values_are_refused(kw, word):
@@ -160,3 +162,30 @@ def test_orient_mesh_normals_are_those_of_the_returned_mesh(mode, flip):
     assert mean[2] > 0
     if mode == "auto":
         np.testing.assert_allclose(mean / np.linalg.norm(mean), [0, 0, 1], atol=1e-12)
+
+
+def test_settle_lowers_moves_into_a_groove_narrower_than_the_ball():
+    """A V-groove (walls at 30 degrees) that the ball bridges: with the settle check no move
+    floats more than about settle * H above the drop surface where it crosses the crease;
+    without it the moves ride over the groove."""
+    from conformill.cutter import BallCutter
+
+    outline = np.array([[-20.0, -20.0], [20.0, -20.0], [20.0, 20.0], [-20.0, 20.0]])
+    part = synthetic.height_field(outline, lambda x, y: np.minimum(np.abs(x), 6.0) * np.tan(np.radians(30.0)),
+                                  0.5, name="groove")
+    cut = BallCutter(part.V, part.F, R_TOOL)
+    h = 0.05
+    floats = {}
+    for settle in (0.0, 0.5):
+        res = plan(part, Job(pattern="zigzag", tool_radius=R_TOOL, scallop=h, tolerance=0.01, settle=settle))
+        assert (res.report["cutter"]["settled_points"] > 0) == (settle > 0)
+        worst = []
+        for tips in res.toolpath.passes:
+            P = tips + [0.0, 0.0, R_TOOL]
+            t = np.arange(1, 16) / 16
+            Q = P[:-1, None, :] + t[None, :, None] * np.diff(P, axis=0)[:, None, :]
+            D = cut.drop(Q[:, :, :2].reshape(-1, 2)).reshape(Q.shape[:2])
+            worst.append(np.max(np.where(np.isfinite(D), Q[:, :, 2] - D, -np.inf)))
+        floats[settle] = max(worst)
+    assert floats[0.0] > 4 * h
+    assert floats[0.5] <= 0.5 * h

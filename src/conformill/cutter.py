@@ -389,6 +389,58 @@ def _drop_many(xy, r, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, C
     return out, hit
 
 
+@njit(cache=True, nogil=True, parallel=True)
+def _reaches_many(xy, thresh, r, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, CP):
+    """Whether the drop height at each point is at least ``thresh``: stops at the first
+    triangle that lifts the ball that high (the last such triangle is tried first)."""
+    k = xy.shape[0]
+    out = np.zeros(k, dtype=np.bool_)
+    nchunks = (k + _CHUNK - 1) // _CHUNK
+    r2 = r * r
+    for ch in prange(nchunks):
+        warm = -1
+        for p in range(ch * _CHUNK, min(k, (ch + 1) * _CHUNK)):
+            px = xy[p, 0]
+            py = xy[p, 1]
+            th = thresh[p]
+            if warm >= 0 and _tri_drop(px, py, r, r2, T, warm) >= th:
+                out[p] = True
+                continue
+            i0 = max(int(math.floor((px - r - gx0) / cell)), 0)
+            i1 = min(int(math.floor((px + r - gx0) / cell)), ncx - 1)
+            j0 = max(int(math.floor((py - r - gy0) / cell)), 0)
+            j1 = min(int(math.floor((py + r - gy0) / cell)), ncy - 1)
+            best = th - 2.0 * _PRUNE_SLACK  # a triangle found must rise above th - slack
+            found = -1
+            for j in range(j0, j1 + 1):
+                cy0 = gy0 + j * cell
+                dy = max(cy0 - py, py - cy0 - cell, 0.0)
+                for i in range(i0, i1 + 1):
+                    c = j * ncx + i
+                    if cstart[c] == cstart[c + 1]:
+                        continue
+                    cx0 = gx0 + i * cell
+                    dx = max(cx0 - px, px - cx0 - cell, 0.0)
+                    q = dx * dx + dy * dy
+                    if q > r2:
+                        continue
+                    gap = best - _PRUNE_SLACK - czmax[c]
+                    if gap > 0.0 and gap * gap > r2 - q:
+                        continue
+                    if _cell_bound(px, py, r2, cx0, cy0, cell, CP, c) + _PRUNE_SLACK < best:
+                        continue
+                    best, found = _scan_cell(px, py, r, r2, T, B, cstart, ctri, EB, c,
+                                             math.sqrt(r2 - q), best, found)
+                    if found >= 0:
+                        break
+                if found >= 0:
+                    break
+            if found >= 0:
+                out[p] = True
+                warm = found
+    return out
+
+
 @njit(cache=True, nogil=True, inline="always")
 def _piece_ok(r, d0, d1, l2, floor2):
     """Whether the bound ``min_t f(t) >= (r - tol/2)^2`` holds (see ``BallCutter.refine``)."""
@@ -953,6 +1005,123 @@ class BallCutter:
                             seg.size, max_iter)
                 P = self._split_safe(P, seg, thresh)
         return P
+
+    def settle(self, centers, tol: float, probes: int = 3, max_iter: int = 4) -> tuple[np.ndarray, int]:
+        """Insert drop-cutter points where a straight centre move floats above the drop surface.
+
+        The other side of :meth:`refine`. Where the drop surface ``D`` has a valley along a
+        move (a crease of ``D`` where the ball sits wedged in a groove narrower than itself,
+        or a concave bend), the chord between two centres on ``D`` runs above ``D`` and the
+        ball leaves material that no scallop formula accounts for: at a groove it is the
+        material at the groove's rims, where only the wedged ball reaches. Each move is
+        tested at its midpoint (one drop, pruned by the floor ``chord - tol / 2``); a move
+        whose midpoint floats more than ``tol / 2`` is probed at ``probes`` evenly spaced
+        points, the highest-floating one is lowered onto ``D`` and inserted, and the two
+        new moves are tested again (at most ``max_iter`` rounds).
+
+        For a valley whose sides are straight along the move (a crease), the float at the
+        midpoint is at least half the largest float, so every move that floats more than
+        ``tol`` somewhere is caught; a narrower dip between the probes can be missed.
+
+        Parameters
+        ----------
+        centers : (k, 3) float64
+            Ball centres of one continuous pass, on or above the drop surface.
+        tol : float
+            Allowed float of a move above ``D``, mm.
+        probes : int
+            Points probed on a move that floats.
+        max_iter : int
+            Rounds of insertion.
+
+        Returns
+        -------
+        centers : (k', 3) float64
+            The input points (unchanged, same order) with the inserted drop points (on
+            ``D``; run :meth:`refine` afterwards, since a lowered point can make a
+            neighbouring move cut into the part).
+        inserted : int
+            Points inserted.
+
+        Raises
+        ------
+        PlanningError
+            Bad shapes, non-finite values, ``tol`` not positive, ``probes < 1``.
+        """
+        P = _as_points(centers, 3, "centers")
+        tol = float(tol)
+        if not (math.isfinite(tol) and tol > 0):
+            raise PlanningError(f"cutter: settle tolerance must be positive, got {tol}")
+        probes = int(probes)
+        if probes < 1:
+            raise PlanningError(f"cutter: settle needs at least one probe, got {probes}")
+        if len(P) < 2:
+            return P.copy(), 0
+        half = 0.5 * tol
+        t = np.arange(1, probes + 1) / (probes + 1)
+        d = np.diff(P, axis=0)
+        check = np.hypot(d[:, 0], d[:, 1]) > 1e-9
+        inserted = 0
+        for _ in range(max_iter):
+            seg = np.flatnonzero(check)
+            if seg.size == 0:
+                break
+            mid = 0.5 * (P[seg] + P[seg + 1])
+            seg = seg[~self._reaches(mid[:, :2], mid[:, 2] - half)]
+            if seg.size == 0:
+                break
+            a, v = P[seg], P[seg + 1] - P[seg]
+            Q = a[:, None, :] + t[None, :, None] * v[:, None, :]
+            D = self.drop(Q[:, :, :2].reshape(-1, 2)).reshape(len(seg), probes)
+            lift = Q[:, :, 2] - D
+            lift[~np.isfinite(lift)] = -np.inf
+            rows = np.arange(len(seg))
+            j = np.argmax(lift, axis=1)
+            tj = t[j]
+            # a crease: the drop surface is straight on each side of it, so a line through
+            # two samples (ends or probes) before the highest float and one through two
+            # after it meet on it; one more drop there, kept where it floats more. With
+            # the highest float at the first (last) probe, that probe itself is the second
+            # point of the left (the first of the right) line.
+            if probes >= 3:
+                tt = np.concatenate([[0.0], t, [1.0]])
+                G = np.column_stack([P[seg, 2], D, P[seg + 1, 2]])  # drop heights at tt
+                m = j + 1  # the highest float's column of tt
+                lo = np.where(m >= 2, m - 2, m - 1)
+                hi = np.where(m + 2 <= probes + 1, m + 1, m)
+                t0, t1, t2, t3 = tt[lo], tt[lo + 1], tt[hi], tt[hi + 1]
+                g0, g1, g2, g3 = G[rows, lo], G[rows, lo + 1], G[rows, hi], G[rows, hi + 1]
+                with np.errstate(invalid="ignore", divide="ignore"):
+                    s1 = (g1 - g0) / (t1 - t0)
+                    s2 = (g3 - g2) / (t3 - t2)
+                    tv = (g2 - g1 + s1 * t1 - s2 * t2) / (s1 - s2)
+                vt = np.isfinite(tv) & (tv > t1) & (tv < t2) & (s2 > s1)
+                if vt.any():
+                    qv = a[vt] + tv[vt, None] * v[vt]
+                    dv = self.drop(qv[:, :2])
+                    lv = qv[:, 2] - dv
+                    better = np.isfinite(lv) & (lv > lift[rows[vt], j[vt]])
+                    idx = rows[vt][better]
+                    tj[idx] = tv[vt][better]
+                    D[idx, j[idx]] = dv[better]
+                    lift[idx, j[idx]] = lv[better]
+            new = a + tj[:, None] * v
+            new[:, 2] = D[rows, j]
+            keep = lift[rows, j] > half
+            if not keep.any():
+                break
+            P, check = _insert(P, seg[keep], new[keep])
+            d = np.diff(P, axis=0)
+            check &= np.hypot(d[:, 0], d[:, 1]) > 1e-9
+            inserted += int(keep.sum())
+        return P, inserted
+
+    def _reaches(self, xy, z):
+        """Whether the drop height at ``xy`` is at least ``z`` (bool per point)."""
+        gx0, gy0, cell, ncx, ncy = self._grid
+        return _reaches_many(np.ascontiguousarray(xy, dtype=np.float64), np.ascontiguousarray(z, dtype=np.float64),
+                             self.radius, self._T, self._B, gx0, gy0, cell, ncx, ncy, self._cstart, self._ctri,
+                             self._czmax, self._EB, self._CP)
 
     def _l_safe(self, thresh):
         """``L_safe = 2 sqrt(r^2 - (r - thresh)^2)``, without cancellation: the longest move

@@ -83,6 +83,9 @@ class PassBuilder:
         Forward chord tolerances (concave / convex along the path) and longest step.
     link_max : float
         Longest link cut on the surface; a longer one ends the pass (a retract).
+    settle_tol : float
+        No centre move floats more than this above the drop surface
+        (:meth:`conformill.cutter.BallCutter.settle`); 0: not checked.
     threaded : bool
         Work in a worker thread (see :func:`threads_can_overlap`).
     batch : int
@@ -95,11 +98,13 @@ class PassBuilder:
     """
 
     def __init__(self, make_cutter, tolerance: float, e_fwd: float, e_cvx: float, max_step: float,
-                 link_max: float, threaded: bool, batch: int = BATCH):
+                 link_max: float, threaded: bool, batch: int = BATCH, settle_tol: float = 0.0):
         self._make_cutter = make_cutter
         self.cutter = None
         self.e, self.e_fwd, self.e_cvx, self.max_step = tolerance, e_fwd, e_cvx, max_step
         self.link_max = link_max
+        self.settle_tol = float(settle_tol)
+        self.n_settled = 0  # points inserted by the settle check
         self.batch = int(batch)
         self.timings = {"forward": 0.0, "cutter": 0.0}
         self.cc_paths, self.fwd_steps = [], []
@@ -258,13 +263,19 @@ class PassBuilder:
         if len(cc):
             centres, lift = self.cutter.cl_from_cc(cc, nn)  # finite, or it raises
             p.lifts.append(lift)
-            # no centre move cuts more than e / 2 into the part (an exact bound): half of
-            # the gouge budget e, the other half left to the mesh facets between samples.
             # The move from the last batch's end into this batch is checked here.
             if p.last is not None:
-                centres = self.cutter.refine(np.vstack([p.last[None], centres]), self.e)[1:]
-            else:
-                centres = self.cutter.refine(centres, self.e)
+                centres = np.vstack([p.last[None], centres])
+            # no move floats more than settle_tol above the drop surface (the material a
+            # chord leaves over a groove the ball cannot enter), then no move cuts more
+            # than e / 2 into the part (an exact bound): half of the gouge budget e, the
+            # other half left to the mesh facets between samples
+            if self.settle_tol > 0:
+                centres, n = self.cutter.settle(centres, self.settle_tol)
+                self.n_settled += n
+            centres = self.cutter.refine(centres, self.e)
+            if p.last is not None:
+                centres = centres[1:]
             p.centres.append(centres)
             p.last = centres[-1]
         self.timings["cutter"] += time.perf_counter() - t0

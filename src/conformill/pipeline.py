@@ -67,6 +67,12 @@ class Job:
         path's step (:meth:`conformill.patterns.family.Planner.run_local`): 18-28 % shorter
         on scans, but more material at scan creases (igea contour: 1.39 h above the rest
         against 1.06 h); the spiral plans as with "adaptive".
+    settle : float
+        Largest float of a centre move above the drop surface, as a fraction of the
+        scallop height (:meth:`conformill.cutter.BallCutter.settle`): where the ball rides
+        over a groove narrower than itself, a move between two centres on either side
+        passes above the wedged position and leaves the groove's rims uncut. 0 turns the
+        check off.
     """
 
     pattern: str = "spiral"
@@ -85,6 +91,7 @@ class Job:
     spindle: float | None = None
     concave_steps: str = "flat"
     spacing: str = "adaptive"
+    settle: float = 0.5
 
 
 class _Timer:
@@ -111,6 +118,8 @@ def check_job(job: Job) -> None:
             raise PlanningError(f"{name.replace('_', '-')} must be a positive number, got {v}")
     if job.plunge_feed is not None and (not np.isfinite(job.plunge_feed) or job.plunge_feed <= 0):
         raise PlanningError(f"plunge-feed must be a positive number, got {job.plunge_feed}")
+    if not (np.isfinite(job.settle) and job.settle >= 0):
+        raise PlanningError(f"settle must be a non-negative number, got {job.settle}")
     if job.orient not in ("none", "auto"):
         raise PlanningError(f"orient must be 'none' or 'auto', got {job.orient!r}")
     if job.concave_steps not in ("flat", "exact"):
@@ -270,7 +279,7 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
     # in a worker thread where numba allows (passes.py; it builds the cutter's index while
     # the map is solved); the program is the same either way
     builder = PassBuilder(lambda: BallCutter(mesh.V, mesh.F, r), e, e_fwd, e_cvx, job.max_step, link_max,
-                          threaded=threads_can_overlap())
+                          threaded=threads_can_overlap(), settle_tol=job.settle * h)
     with builder:  # stops the worker if a stage fails
         say("parameterize", 0.0)
         with timer("parameterize"):
@@ -334,6 +343,7 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
         if builder.threaded:
             timer.t["cutter_wait"] = t_wait
         cc_paths, fwd_steps, n_retracts_link = builder.cc_paths, builder.fwd_steps, builder.n_retracts_link
+        n_settled = builder.n_settled
     toolpath = ToolPath(passes=passes, safe_z=safe_z, pass_ids=pass_ids)
 
     # -- figures -----------------------------------------------------------------
@@ -353,7 +363,7 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
                 "plunge_feed": job.plunge_feed or job.feed / 3, "safe_z": safe_z, "orient": job.orient,
                 "weights": job.weights, "max_step": job.max_step, "link_max": link_max,
                 "forward_chord_tolerance": e_fwd, "forward_chord_tolerance_convex": e_cvx,
-                "concave_steps": job.concave_steps, "spacing": job.spacing},
+                "concave_steps": job.concave_steps, "spacing": job.spacing, "settle": job.settle},
         "orientation": orient_info,
         "parameterization": {"boundary": param.kind, "domain": param.domain, "corners": param.corners,
                              "solver": param.solver, "residual": param.residual, "fallbacks": param.fallbacks,
@@ -374,7 +384,7 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
                     "utilisation = d / allowed l_s (the paper's min rule leaves it below 100% away from the "
                     "point that sets the step)",
         },
-        "cutter": {"lift_mm": _stats(lift_all),
+        "cutter": {"lift_mm": _stats(lift_all), "settled_points": n_settled,
                    "lift_over_tolerance_share": float(np.mean(lift_all > e)) if lift_all.size else 0.0},
         "reachability": {"undercut_share": undercut_share,
                          "concave_below_tool_radius_share": unreach_share, "concave_regions": regions},

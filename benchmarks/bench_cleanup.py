@@ -1,9 +1,9 @@
 """What it would take to meet 1.05 h on a scan's reachable area: three prototypes, measured.
 
 Not part of the product. On igea the judged p99.9 of a conformill program is 1.52-1.61 h
-(``verify --judge reachable``, session 12); what is left above 1.05 h sits mostly at the
-rims of the regions tighter than the ball, where the least material any ball leaves (the
-rest) is 0.5-1.05 h.
+without the settle check (``plan --settle 0``, session 12) and 1.25-1.41 h with it
+(session 13); what is left above 1.05 h sits mostly at the rims of the regions tighter
+than the ball, where the least material any ball leaves (the rest) is 0.5-1.05 h.
 This script takes a kept program (``bench_raster.py --keep DIR``) and measures, each
 judged by ``verify`` on its own samples (400k, seed 0, limit 1.05 h, reach depth h):
 

@@ -585,11 +585,39 @@ class TestSettle:
         P = np.column_stack([x, [2.0, 2.0], np.abs(x) * np.tan(a) + R_BALL / np.cos(a)])
         np.testing.assert_allclose(cut.drop(P[:, :2]), P[:, 2], atol=1e-12)
         assert _max_float(cut, P, n=65) == pytest.approx(1.2 * np.tan(a), rel=1e-9)  # x = 0 is the 26th point
-        Q, n = cut.settle(P, 0.005)
-        assert n == 1 and len(Q) == 3
+        Q, n, left = cut.settle(P, 0.005)
+        assert n == 1 and len(Q) == 3 and left == 0
         np.testing.assert_array_equal(Q[[0, 2]], P)
         np.testing.assert_allclose(Q[1], [0.0, 2.0, R_BALL / np.cos(a)], atol=1e-9)
         assert _max_float(cut, Q) <= 1e-9
+
+    @pytest.mark.parametrize("x0, x1, points", [(-0.9, 2.1, 1), (-2.1, 0.9, 1), (-0.3, 2.7, 2), (-2.7, 0.3, 2)])
+    def test_v_groove_crease_off_the_middle(self, x0, x1, points):
+        # the crease at t = 0.3 / 0.7 of the move lies between the first and the last probe
+        # (t = 1/4 ... 3/4): found in one round; at t = 0.1 / 0.9 in two (the probe first)
+        a = np.radians(30.0)
+        V, F = _v_groove()
+        cut = BallCutter(V, F, R_BALL)
+        x = np.array([x0, x1])
+        P = np.column_stack([x, [-3.0, -3.0], np.abs(x) * np.tan(a) + R_BALL / np.cos(a)])
+        Q, n, left = cut.settle(P, 0.005)
+        assert n == points == len(Q) - 2 and left == 0
+        np.testing.assert_allclose(Q[np.argmin(np.abs(Q[:, 0]))], [0.0, -3.0, R_BALL / np.cos(a)], atol=1e-9)
+        assert _max_float(cut, Q) <= 1e-9
+
+    def test_move_over_a_gap_is_left_alone(self):
+        # a move from one plate to another across a gap wider than the ball: D is -inf in
+        # the gap, nothing to lower the move onto
+        m1 = syn.plane(size=20.0, spacing=2.0)
+        V2 = m1.V + [30.0, 0.0, 0.0]
+        V = np.vstack([m1.V, V2])
+        F = np.vstack([m1.F, m1.F + len(m1.V)])
+        cut = BallCutter(V, F, R_BALL)
+        P = np.array([[5.0, 0.0, R_BALL], [25.0, 0.0, R_BALL]])
+        assert not np.isfinite(cut.drop(np.array([[15.0, 0.0]])))[0]
+        Q, n, left = cut.settle(P, 0.01)
+        assert n == 0 and left == 0
+        np.testing.assert_array_equal(Q, P)
 
     @pytest.mark.parametrize("tol", [0.01, 0.002])
     def test_trough_floats_at_most_tol(self, tol):
@@ -602,13 +630,15 @@ class TestSettle:
                         for k, x in enumerate((-6.0, -2.0, 2.0))])
         P = np.column_stack([xy, cut.drop(xy)])
         assert _max_float(cut, P) > 0.1
-        Q, n = cut.settle(P, tol, max_iter=20)
-        assert n == len(Q) - len(P) > 0 and _is_subsequence(P, Q)
+        Q, n, left = cut.settle(P, tol, max_iter=20)
+        assert n == len(Q) - len(P) > 0 and _is_subsequence(P, Q) and left == 0
         np.testing.assert_allclose(cut.drop(Q[:, :2]), Q[:, 2], atol=1e-9)  # inserted points on D
         assert _max_float(cut, Q) <= tol
-        # the default (three rounds) stops earlier but has lowered every move
-        Q3, _ = cut.settle(P, tol)
-        assert _max_float(cut, Q3) < 0.25 * _max_float(cut, P)
+        # one round halves every floating move (a quarter of the float on a circle) and
+        # reports the new moves it did not test again
+        Q1, n1, left1 = cut.settle(P, tol, max_iter=1)
+        assert left1 == 2 * n1 > 0
+        assert _max_float(cut, Q1) < 0.3 * _max_float(cut, P)
 
     def test_plane_and_dome_need_nothing(self):
         # on a plane no move floats; over a dome every chord lies below D (refine's side)
@@ -616,15 +646,15 @@ class TestSettle:
             cut = BallCutter(m.V, m.F, R_BALL)
             xy = np.array([[-12.0, -11], [13, 12], [12, -13], [-1, 0.5]])
             P = np.column_stack([xy, cut.drop(xy)])
-            Q, n = cut.settle(P, 0.001)
-            assert n == 0
+            Q, n, left = cut.settle(P, 0.001)
+            assert n == 0 and left == 0
             np.testing.assert_array_equal(Q, P)
 
     def test_short_inputs_and_bad_arguments(self):
         m = syn.plane(size=20.0, spacing=5.0)
         cut = BallCutter(m.V, m.F, R_BALL)
-        Q, n = cut.settle(np.array([[0.0, 0.0, 4.0]]), 0.01)
-        assert n == 0 and Q.shape == (1, 3)
+        Q, n, left = cut.settle(np.array([[0.0, 0.0, 4.0]]), 0.01)
+        assert n == 0 and left == 0 and Q.shape == (1, 3)
         with pytest.raises(PlanningError, match="settle tolerance must be positive"):
             cut.settle(np.zeros((2, 3)), 0.0)
         with pytest.raises(PlanningError, match="at least one probe"):

@@ -22,8 +22,16 @@ R = 4.0
 
 @pytest.fixture(scope="module")
 def recorded():
-    """A contour plan's pieces and builder settings, recorded from the pipeline."""
-    part = synthetic.freeform_patch(spacing=2.0, jitter=0.3, seed=1)
+    """A contour plan's pieces and builder settings, recorded from the pipeline.
+
+    The free-form patch with a V-groove cut across it (walls at 30 degrees, narrower than
+    the ball), so that the settle check inserts points too."""
+    from conformill.types import Mesh
+
+    part = synthetic.freeform_patch(spacing=1.0, jitter=0.3, seed=1)
+    V = part.V.copy()
+    V[:, 2] -= np.maximum(3.0 - np.abs(V[:, 0] - 5.0), 0.0) * np.tan(np.radians(30.0))
+    part = Mesh(V=V, F=part.F, name="grooved")
     seen = {}
 
     class Recording(PassBuilder):
@@ -49,7 +57,8 @@ def _build(seen, threaded, batch, link_max=None):
     args = list(seen["args"])
     if link_max is not None:
         args[4] = link_max
-    b = PassBuilder(seen["make_cutter"], *args[:5], threaded=threaded, batch=batch)
+    b = PassBuilder(seen["make_cutter"], *args[:5], threaded=threaded, batch=batch,
+                    settle_tol=seen["kw"]["settle_tol"])
     for pc in seen["pieces"]:
         b.add(pc)
     return b.finish(), b
@@ -69,7 +78,9 @@ def test_batches_and_worker_give_the_same_program(recorded, batch, threaded):
     res, seen = recorded
     if threaded and not threads_can_overlap():
         pytest.skip("numba's threading layer here does not allow two threads")
-    (passes, ids, lifts), _ = _build(seen, threaded, batch)
+    assert seen["kw"]["settle_tol"] > 0 and res.report["cutter"]["settled_points"] > 0
+    (passes, ids, lifts), b = _build(seen, threaded, batch)
+    assert b.n_settled == res.report["cutter"]["settled_points"]
     assert ids == res.toolpath.pass_ids
     assert len(passes) == len(res.toolpath.passes)
     for a, b in zip(passes, res.toolpath.passes):

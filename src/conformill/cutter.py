@@ -391,8 +391,10 @@ def _drop_many(xy, r, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, C
 
 @njit(cache=True, nogil=True, parallel=True)
 def _reaches_many(xy, thresh, r, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, CP):
-    """Whether the drop height at each point is at least ``thresh``: stops at the first
-    triangle that lifts the ball that high (the last such triangle is tried first)."""
+    """Whether the drop height at each point reaches ``thresh`` (ties within
+    ``2 * _PRUNE_SLACK`` either way): stops at the first triangle that lifts the ball that
+    high (the last such triangle is tried first). Exact otherwise: the answer does not
+    depend on the order of the points."""
     k = xy.shape[0]
     out = np.zeros(k, dtype=np.bool_)
     nchunks = (k + _CHUNK - 1) // _CHUNK
@@ -410,7 +412,7 @@ def _reaches_many(xy, thresh, r, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, c
             i1 = min(int(math.floor((px + r - gx0) / cell)), ncx - 1)
             j0 = max(int(math.floor((py - r - gy0) / cell)), 0)
             j1 = min(int(math.floor((py + r - gy0) / cell)), ncy - 1)
-            best = th - 2.0 * _PRUNE_SLACK  # a triangle found must rise above th - slack
+            best = th - 2.0 * _PRUNE_SLACK  # a triangle found rises above th - 2 slack
             found = -1
             for j in range(j0, j1 + 1):
                 cy0 = gy0 + j * cell
@@ -1006,22 +1008,29 @@ class BallCutter:
                 P = self._split_safe(P, seg, thresh)
         return P
 
-    def settle(self, centers, tol: float, probes: int = 3, max_iter: int = 4) -> tuple[np.ndarray, int]:
+    def settle(self, centers, tol: float, probes: int = 3, max_iter: int = 4) -> tuple[np.ndarray, int, int]:
         """Insert drop-cutter points where a straight centre move floats above the drop surface.
 
         The other side of :meth:`refine`. Where the drop surface ``D`` has a valley along a
         move (a crease of ``D`` where the ball sits wedged in a groove narrower than itself,
         or a concave bend), the chord between two centres on ``D`` runs above ``D`` and the
         ball leaves material that no scallop formula accounts for: at a groove it is the
-        material at the groove's rims, where only the wedged ball reaches. Each move is
-        tested at its midpoint (one drop, pruned by the floor ``chord - tol / 2``); a move
-        whose midpoint floats more than ``tol / 2`` is probed at ``probes`` evenly spaced
-        points, the highest-floating one is lowered onto ``D`` and inserted, and the two
-        new moves are tested again (at most ``max_iter`` rounds).
+        material at the groove's rims, where only the wedged ball reaches.
 
-        For a valley whose sides are straight along the move (a crease), the float at the
-        midpoint is at least half the largest float, so every move that floats more than
-        ``tol`` somewhere is caught; a narrower dip between the probes can be missed.
+        Each move is tested at its midpoint: a compiled test that stops at the first
+        triangle lifting the ball there to within ``tol / 2`` of the chord. A move whose
+        midpoint floats more is probed at ``probes`` evenly spaced points. With at least
+        three probes, the lines through two samples (ends or probes) on each side of the
+        highest float are met, as at a crease with straight sides, and one more drop is
+        made there, kept where it floats more. The highest-floating point is lowered onto
+        ``D`` and inserted, and the two new moves are tested again, for at most
+        ``max_iter`` rounds. A crease with straight sides between the first and the last
+        probe is found exactly in one round, one nearer an end in two.
+
+        For such a crease the float at the midpoint is at least half the largest float,
+        so every move that floats more than ``tol`` there is caught; a narrower dip between
+        the probes can be missed, and a curved valley may need more rounds than
+        ``max_iter`` (those moves are counted, not resolved).
 
         Parameters
         ----------
@@ -1030,7 +1039,7 @@ class BallCutter:
         tol : float
             Allowed float of a move above ``D``, mm.
         probes : int
-            Points probed on a move that floats.
+            Points probed on a move that floats (the crease step needs three or more).
         max_iter : int
             Rounds of insertion.
 
@@ -1042,6 +1051,9 @@ class BallCutter:
             neighbouring move cut into the part).
         inserted : int
             Points inserted.
+        unresolved : int
+            Moves made in the last round and not tested again (0 when the rounds ended
+            before ``max_iter``).
 
         Raises
         ------
@@ -1056,7 +1068,7 @@ class BallCutter:
         if probes < 1:
             raise PlanningError(f"cutter: settle needs at least one probe, got {probes}")
         if len(P) < 2:
-            return P.copy(), 0
+            return P.copy(), 0, 0
         half = 0.5 * tol
         t = np.arange(1, probes + 1) / (probes + 1)
         d = np.diff(P, axis=0)
@@ -1114,10 +1126,12 @@ class BallCutter:
             d = np.diff(P, axis=0)
             check &= np.hypot(d[:, 0], d[:, 1]) > 1e-9
             inserted += int(keep.sum())
-        return P, inserted
+        else:
+            return P, inserted, int(check.sum())
+        return P, inserted, 0
 
     def _reaches(self, xy, z):
-        """Whether the drop height at ``xy`` is at least ``z`` (bool per point)."""
+        """Whether the drop height at ``xy`` is at least ``z`` (bool per point; ties within 2e-9 mm either way)."""
         gx0, gy0, cell, ncx, ncy = self._grid
         return _reaches_many(np.ascontiguousarray(xy, dtype=np.float64), np.ascontiguousarray(z, dtype=np.float64),
                              self.radius, self._T, self._B, gx0, gy0, cell, ncx, ncy, self._cstart, self._ctri,

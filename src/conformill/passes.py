@@ -8,10 +8,10 @@ while the pattern stage plans the next paths: the pattern stage is mostly serial
 cutter is parallel, so the two fill both cores instead of taking turns.
 
 Batching changes nothing in the program: the drop-cutter is exact per point, and
-:meth:`conformill.cutter.BallCutter.refine` decides every move on its own (its rounds
-only ever re-check the two halves of a move it split), so refining a batch together with
-the last centre of the batch before gives, point for point, what one call on the whole
-pass gives.
+:meth:`conformill.cutter.BallCutter.settle` and :meth:`conformill.cutter.BallCutter.refine`
+decide every move on its own (their rounds only ever re-check the two halves of a move
+they split), so settling and refining a batch together with the last centre of the batch
+before gives, point for point, what one call on the whole pass gives.
 """
 
 from __future__ import annotations
@@ -105,6 +105,7 @@ class PassBuilder:
         self.link_max = link_max
         self.settle_tol = float(settle_tol)
         self.n_settled = 0  # points inserted by the settle check
+        self.n_settle_unresolved = 0  # moves its rounds did not test again
         self.batch = int(batch)
         self.timings = {"forward": 0.0, "cutter": 0.0}
         self.cc_paths, self.fwd_steps = [], []
@@ -271,8 +272,9 @@ class PassBuilder:
             # than e / 2 into the part (an exact bound): half of the gouge budget e, the
             # other half left to the mesh facets between samples
             if self.settle_tol > 0:
-                centres, n = self.cutter.settle(centres, self.settle_tol)
+                centres, n, left = self.cutter.settle(centres, self.settle_tol)
                 self.n_settled += n
+                self.n_settle_unresolved += left
             centres = self.cutter.refine(centres, self.e)
             if p.last is not None:
                 centres = centres[1:]

@@ -71,8 +71,10 @@ class Job:
         Largest float of a centre move above the drop surface, as a fraction of the
         scallop height (:meth:`conformill.cutter.BallCutter.settle`): where the ball rides
         over a groove narrower than itself, a move between two centres on either side
-        passes above the wedged position and leaves the groove's rims uncut. 0 turns the
-        check off.
+        passes above the wedged position and leaves the groove's rims uncut. Met at
+        creases with straight sides; curved valleys get four rounds of insertion, and the
+        moves still untested after them are counted in the report
+        (``cutter.settle_unresolved_moves``). 0 turns the check off.
     """
 
     pattern: str = "spiral"
@@ -343,7 +345,7 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
         if builder.threaded:
             timer.t["cutter_wait"] = t_wait
         cc_paths, fwd_steps, n_retracts_link = builder.cc_paths, builder.fwd_steps, builder.n_retracts_link
-        n_settled = builder.n_settled
+        n_settled, n_unsettled = builder.n_settled, builder.n_settle_unresolved
     toolpath = ToolPath(passes=passes, safe_z=safe_z, pass_ids=pass_ids)
 
     # -- figures -----------------------------------------------------------------
@@ -385,6 +387,7 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
                     "point that sets the step)",
         },
         "cutter": {"lift_mm": _stats(lift_all), "settled_points": n_settled,
+                   "settle_unresolved_moves": n_unsettled,
                    "lift_over_tolerance_share": float(np.mean(lift_all > e)) if lift_all.size else 0.0},
         "reachability": {"undercut_share": undercut_share,
                          "concave_below_tool_radius_share": unreach_share, "concave_regions": regions},

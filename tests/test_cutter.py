@@ -551,19 +551,6 @@ class TestRefine:
 # ----------------------------------------------------------------------------- settle (float above D)
 
 
-def _v_groove(a_deg=30.0, half=12.0, step=0.25):
-    """A V-groove z = |x| tan(a) on a grid with a vertex row on the crease x = 0."""
-    x = np.arange(-half, half + 1e-9, step)
-    y = np.arange(-half, half + 1e-9, 2 * step)
-    X, Y = np.meshgrid(x, y)
-    V = np.column_stack([X.ravel(), Y.ravel(), np.abs(X.ravel()) * np.tan(np.radians(a_deg))])
-    nx = len(x)
-    i, j = np.meshgrid(np.arange(nx - 1), np.arange(len(y) - 1))
-    v0 = (j * nx + i).ravel()
-    F = np.vstack([np.column_stack([v0, v0 + 1, v0 + nx + 1]), np.column_stack([v0, v0 + nx + 1, v0 + nx])])
-    return V, F.astype(np.int64)
-
-
 def _max_float(cut, P, n=64):
     """Largest height of the moves of ``P`` above the drop surface (``n`` points per move)."""
     t = np.arange(1, n) / n
@@ -579,8 +566,8 @@ class TestSettle:
         # floats 1.2 tan(a) above it there; the crease is found exactly (the lines through
         # the probes on each wall meet on it), one point, and nothing floats any more.
         a = np.radians(30.0)
-        V, F = _v_groove()
-        cut = BallCutter(V, F, R_BALL)
+        m = syn.v_groove()
+        cut = BallCutter(m.V, m.F, R_BALL)
         x = np.array([-1.0, 1.5])
         P = np.column_stack([x, [2.0, 2.0], np.abs(x) * np.tan(a) + R_BALL / np.cos(a)])
         np.testing.assert_allclose(cut.drop(P[:, :2]), P[:, 2], atol=1e-12)
@@ -596,8 +583,8 @@ class TestSettle:
         # the crease at t = 0.3 / 0.7 of the move lies between the first and the last probe
         # (t = 1/4 ... 3/4): found in one round; at t = 0.1 / 0.9 in two (the probe first)
         a = np.radians(30.0)
-        V, F = _v_groove()
-        cut = BallCutter(V, F, R_BALL)
+        m = syn.v_groove()
+        cut = BallCutter(m.V, m.F, R_BALL)
         x = np.array([x0, x1])
         P = np.column_stack([x, [-3.0, -3.0], np.abs(x) * np.tan(a) + R_BALL / np.cos(a)])
         Q, n, left = cut.settle(P, 0.005)

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from conformill.mesh.synthetic import cylinder_patch, height_field, plane, regular_polygon
+from conformill.mesh.synthetic import cylinder_patch, height_field, plane, regular_polygon, v_groove
 from conformill.verify.samples import sample_surface
 from conformill.verify.simulate import unreachable_samples
 
@@ -70,21 +70,6 @@ def test_shank_test_is_exact_at_the_edge_of_an_overhang():
 # ----------------------------------------------------------------------------- rest material
 
 
-def _v_groove(a_deg=30.0, half=12.0, step=0.25):
-    """A V-groove z = |x| tan(a) on a grid with a vertex row on the crease x = 0."""
-    from conformill.types import Mesh
-
-    x = np.arange(-half, half + 1e-9, step)
-    y = np.arange(-half, half + 1e-9, 2 * step)
-    X, Y = np.meshgrid(x, y)
-    V = np.column_stack([X.ravel(), Y.ravel(), np.abs(X.ravel()) * np.tan(np.radians(a_deg))])
-    nx = len(x)
-    i, j = np.meshgrid(np.arange(nx - 1), np.arange(len(y) - 1))
-    v0 = (j * nx + i).ravel()
-    F = np.vstack([np.column_stack([v0, v0 + 1, v0 + nx + 1]), np.column_stack([v0, v0 + nx + 1, v0 + nx])])
-    return Mesh(V=V, F=F.astype(np.int64), name="v-groove")
-
-
 def test_rest_material_in_a_v_groove_matches_the_circle():
     # The ball of radius r sits in the groove touching both walls at |x| = r sin(a); a point
     # q of the right wall with x0 < r sin(a) lies u = (r sin(a) - x0) / cos(a) along the wall
@@ -93,7 +78,7 @@ def test_rest_material_in_a_v_groove_matches_the_circle():
     from conformill.verify.rest import rest_material, tangent_rest
 
     a, r = np.radians(30.0), 4.0
-    m = _v_groove()
+    m = v_groove()
     x0 = np.linspace(0.3, 3.0, 28)
     P = np.column_stack([x0, np.full_like(x0, 0.3), x0 * np.tan(a)])
     N = np.tile([-np.sin(a), 0.0, np.cos(a)], (len(x0), 1))
@@ -144,7 +129,7 @@ def _groove_case(n=400):
     from conformill.verify.samples import SurfaceSamples
 
     a, r = np.radians(12.0), 2.0
-    m = _v_groove(a_deg=12.0, step=2.0)
+    m = v_groove(a_deg=12.0, step=2.0)
     rng = np.random.default_rng(5)
     x0 = rng.uniform(0.02, 1.0, n)
     y0 = rng.uniform(-4.0, 4.0, n)

@@ -283,7 +283,7 @@ def _scan_cell(px, py, r, r2, T, B, cstart, ctri, EB, c, hc, best, besttri):
 
 @njit(cache=True, nogil=True)
 def _drop_point(px, py, r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, CP,
-                warm, cid, cbound, floor):
+                warm, cid, cbound, floor, first=False):
     """Drop height at one point; returns (height, contact triangle or -1).
 
     With a warm start (the previous point's contact triangle) or a finite ``floor`` (a
@@ -291,7 +291,8 @@ def _drop_point(px, py, r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czm
     cells are scanned in grid order, each skipped when its bound is below the best height;
     without either they are visited by decreasing bound, which finds a good height sooner.
     The result is ``max(drop, floor)``, with triangle -1 when no triangle rises above
-    ``floor``.
+    ``floor``. With ``first`` (and a finite ``floor``) it stops at the first cell that
+    holds a triangle rising above ``floor``: only whether one does is then exact.
     """
     best = floor
     besttri = -1
@@ -300,6 +301,8 @@ def _drop_point(px, py, r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czm
         if h > best:
             best = h
             besttri = warm
+            if first:
+                return best, besttri
     i0 = int(math.floor((px - r - gx0) / cell))
     i1 = int(math.floor((px + r - gx0) / cell))
     j0 = int(math.floor((py - r - gy0) / cell))
@@ -345,6 +348,8 @@ def _drop_point(px, py, r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czm
                     continue
                 best, besttri = _scan_cell(px, py, r, r2, T, B, cstart, ctri, EB, c,
                                            math.sqrt(r2 - q), best, besttri)
+                if first and besttri >= 0:
+                    return best, besttri
     # cold start: visit cells by decreasing bound; stop when no cell can raise the best
     while n > 0:
         k = 0
@@ -390,56 +395,26 @@ def _drop_many(xy, r, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, C
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _reaches_many(xy, thresh, r, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, CP):
+def _reaches_many(xy, thresh, r, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, CP, maxwin):
     """Whether the drop height at each point reaches ``thresh`` (ties within
-    ``2 * _PRUNE_SLACK`` either way): stops at the first triangle that lifts the ball that
-    high (the last such triangle is tried first). Exact otherwise: the answer does not
-    depend on the order of the points."""
+    ``2 * _PRUNE_SLACK`` either way): :func:`_drop_point` with the floor just below
+    ``thresh``, stopping at the first triangle that lifts the ball that high (the last
+    such triangle is tried first). Exact otherwise: the answer does not depend on the
+    order of the points."""
     k = xy.shape[0]
     out = np.zeros(k, dtype=np.bool_)
     nchunks = (k + _CHUNK - 1) // _CHUNK
     r2 = r * r
     for ch in prange(nchunks):
+        cid = np.empty(maxwin, dtype=np.int64)
+        cbound = np.empty(maxwin, dtype=np.float64)
         warm = -1
         for p in range(ch * _CHUNK, min(k, (ch + 1) * _CHUNK)):
-            px = xy[p, 0]
-            py = xy[p, 1]
-            th = thresh[p]
-            if warm >= 0 and _tri_drop(px, py, r, r2, T, warm) >= th:
+            _, t = _drop_point(xy[p, 0], xy[p, 1], r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri,
+                               czmax, EB, CP, warm, cid, cbound, thresh[p] - 2.0 * _PRUNE_SLACK, True)
+            if t >= 0:
                 out[p] = True
-                continue
-            i0 = max(int(math.floor((px - r - gx0) / cell)), 0)
-            i1 = min(int(math.floor((px + r - gx0) / cell)), ncx - 1)
-            j0 = max(int(math.floor((py - r - gy0) / cell)), 0)
-            j1 = min(int(math.floor((py + r - gy0) / cell)), ncy - 1)
-            best = th - 2.0 * _PRUNE_SLACK  # a triangle found rises above th - 2 slack
-            found = -1
-            for j in range(j0, j1 + 1):
-                cy0 = gy0 + j * cell
-                dy = max(cy0 - py, py - cy0 - cell, 0.0)
-                for i in range(i0, i1 + 1):
-                    c = j * ncx + i
-                    if cstart[c] == cstart[c + 1]:
-                        continue
-                    cx0 = gx0 + i * cell
-                    dx = max(cx0 - px, px - cx0 - cell, 0.0)
-                    q = dx * dx + dy * dy
-                    if q > r2:
-                        continue
-                    gap = best - _PRUNE_SLACK - czmax[c]
-                    if gap > 0.0 and gap * gap > r2 - q:
-                        continue
-                    if _cell_bound(px, py, r2, cx0, cy0, cell, CP, c) + _PRUNE_SLACK < best:
-                        continue
-                    best, found = _scan_cell(px, py, r, r2, T, B, cstart, ctri, EB, c,
-                                             math.sqrt(r2 - q), best, found)
-                    if found >= 0:
-                        break
-                if found >= 0:
-                    break
-            if found >= 0:
-                out[p] = True
-                warm = found
+                warm = t
     return out
 
 
@@ -1135,7 +1110,7 @@ class BallCutter:
         gx0, gy0, cell, ncx, ncy = self._grid
         return _reaches_many(np.ascontiguousarray(xy, dtype=np.float64), np.ascontiguousarray(z, dtype=np.float64),
                              self.radius, self._T, self._B, gx0, gy0, cell, ncx, ncy, self._cstart, self._ctri,
-                             self._czmax, self._EB, self._CP)
+                             self._czmax, self._EB, self._CP, self._maxwin)
 
     def _l_safe(self, thresh):
         """``L_safe = 2 sqrt(r^2 - (r - thresh)^2)``, without cancellation: the longest move

@@ -155,6 +155,22 @@ def sphere_cap(R: float = 50.0, radius_xy: float = 30.0, spacing: float = 2.0, c
     return m
 
 
+def v_groove(a_deg: float = 30.0, half: float = 12.0, step: float = 0.25):
+    """A V-groove ``z = |x| tan(a)`` over ``[-half, half]^2`` on a regular grid (``step`` in
+    X, ``2 step`` in Y) with a vertex row on the crease ``x = 0``, so both walls are exact
+    planes. A ball of radius ``r`` resting on it has its centre at ``|x| tan(a) + r / cos(a)``
+    (for ``|x| <= half - r sin(a)``), wedged on the crease at ``x = 0``."""
+    x = np.arange(-half, half + 1e-9, step)
+    y = np.arange(-half, half + 1e-9, 2 * step)
+    X, Y = np.meshgrid(x, y)
+    V = np.column_stack([X.ravel(), Y.ravel(), np.abs(X.ravel()) * np.tan(np.radians(a_deg))])
+    nx = len(x)
+    i, j = np.meshgrid(np.arange(nx - 1), np.arange(len(y) - 1))
+    v0 = (j * nx + i).ravel()
+    F = np.vstack([np.column_stack([v0, v0 + 1, v0 + nx + 1]), np.column_stack([v0, v0 + nx + 1, v0 + nx])])
+    return Mesh(V=V, F=F.astype(np.int64), name="v-groove")
+
+
 def cylinder_patch(R: float = 40.0, length: float = 80.0, half_angle: float = 0.9, spacing: float = 2.0,
                    concave: bool = False, jitter: float = 0.0, seed: int = 0):
     """Part of a cylinder of radius ``R`` with axis along X, seen from +Z.

@@ -767,11 +767,6 @@ def _stats(rem, gouge, P, gline, H, gouge_tol):
 #: How far (mm) the independently measured distance from a rest-search centre to the mesh
 #: may exceed ``r`` before the drop height there is taken as wrong (see :func:`_beyond_any_ball`).
 _TOUCH_TOL = 1e-6
-# A sample is excused only where the least material found exceeds the limit (no program
-# can meet it there). The first search's value is an upper bound of the true rest, so a
-# sample it puts above the limit is searched again, wider and deeper
-# (conformill.verify.rest.CONFIRM), and excused only if that search finds no ball within
-# the limit either (see _beyond_any_ball).
 
 
 def _mesh_distance(V, F, C, reach):

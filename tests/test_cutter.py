@@ -330,6 +330,24 @@ class TestClFromCC:
         np.testing.assert_allclose(lift, 0.0, atol=1e-10)
         np.testing.assert_allclose(np.linalg.norm(centre - cc, axis=1), R_BALL, atol=1e-10)
 
+    def test_contacts_are_the_triangles_the_centres_rest_on(self):
+        from conformill.cutter import _tri_drop
+
+        m = syn.freeform_patch(spacing=2.0, jitter=0.3)
+        cut = BallCutter(m.V, m.F, 3.0)
+        xy = np.random.default_rng(3).uniform(-30, 30, (300, 2))
+        D = cut.drop(xy)
+        xy, D = xy[np.isfinite(D)], D[np.isfinite(D)]  # the outline is notched
+        cc = np.column_stack([xy, D - 3.0])  # tip under the centre: a CC point with n = Z
+        n = np.tile([0.0, 0.0, 1.0], (len(xy), 1))
+        centre, lift, tri = cut.cl_from_cc(cc, n, contacts=True)
+        c2, l2 = cut.cl_from_cc(cc, n)
+        np.testing.assert_array_equal(centre, c2)
+        np.testing.assert_array_equal(lift, l2)
+        assert tri.dtype == np.int64 and (tri >= 0).all()
+        h = np.array([_tri_drop(x, y, 3.0, 9.0, cut._T, t) for (x, y, _), t in zip(centre, tri)])
+        np.testing.assert_array_equal(h, centre[:, 2])  # the contact triangle gives the drop height
+
     def test_sphere_lift_is_faceting_error(self):
         R = 50.0
         m = syn.sphere_cap(R=R, radius_xy=30.0, spacing=0.5)
@@ -649,6 +667,46 @@ class TestSettle:
         with pytest.raises(PlanningError, match="non-finite"):
             cut.settle(np.array([[0.0, 0.0, np.nan], [1.0, 0.0, 4.0]]), 0.01)
 
+    def test_contact_hints_change_nothing(self):
+        # hints only decide where the searches start: the right triangles (from
+        # cl_from_cc), wrong ones and none give the same points, point for point
+        m = syn.v_groove()
+        cut = BallCutter(m.V, m.F, R_BALL)
+        x = np.arange(-6.3, 6.0, 1.7)  # the crease x = 0 inside a move
+        y = np.linspace(-8.0, 8.0, 9)
+        xy = np.vstack([np.column_stack([x if k % 2 == 0 else x[::-1], np.full_like(x, yk)])
+                        for k, yk in enumerate(y)])
+        cc = np.column_stack([xy, np.zeros(len(xy))])
+        n = np.tile([0.0, 0.0, 1.0], (len(xy), 1))
+        P, _, tri = cut.cl_from_cc(cc, n, contacts=True)
+        ref = cut.settle(P, 0.005)
+        assert ref[1] > 0
+        wrong = np.random.default_rng(4).integers(0, len(cut._T), len(P))
+        for hint in (tri, wrong, np.full(len(P), -1)):
+            Q, k, left, qtri = cut.settle(P, 0.005, contacts=hint)
+            np.testing.assert_array_equal(Q, ref[0])
+            assert (k, left) == ref[1:]
+            assert len(qtri) == len(Q)
+        # with the right hints the inserted points carry the triangles they rest on
+        Q, _, _, qtri = cut.settle(P, 0.005, contacts=tri)
+        from conformill.cutter import _tri_drop
+
+        h = np.array([_tri_drop(x, yy, R_BALL, R_BALL ** 2, cut._T, t) for (x, yy, _), t in zip(Q, qtri)])
+        np.testing.assert_allclose(h, Q[:, 2], atol=1e-12)
+
+    def test_bad_contacts_are_refused(self):
+        m = syn.plane(size=20.0, spacing=5.0)
+        cut = BallCutter(m.V, m.F, R_BALL)
+        P = np.array([[0.0, 0.0, 4.0], [1.0, 0.0, 4.0]])
+        with pytest.raises(PlanningError, match="one per centre"):
+            cut.settle(P, 0.01, contacts=[0])
+        with pytest.raises(PlanningError, match="one per centre"):
+            cut.settle(P, 0.01, contacts=[0.5, 1.0])
+        with pytest.raises(PlanningError, match="not triangles of this cutter.*centre 1"):
+            cut.settle(P, 0.01, contacts=[0, len(cut._T)])
+        with pytest.raises(PlanningError, match="not triangles of this cutter.*centre 0"):
+            cut.settle(P, 0.01, contacts=[-2, 0])
+
     def test_reaches_agrees_with_the_drop(self):
         m = syn.freeform_patch(spacing=2.0, jitter=0.3)
         cut = BallCutter(m.V, m.F, 3.0)
@@ -658,6 +716,8 @@ class TestSettle:
         z[~np.isfinite(D)] = 0.0
         far = np.abs(z - D) > 1e-6  # away from the tie
         np.testing.assert_array_equal(cut._reaches(xy, z)[far], (D >= z)[far])
+        wrong = np.random.default_rng(7).integers(-1, len(cut._T), (2, len(xy)))
+        np.testing.assert_array_equal(cut._reaches(xy, z, *wrong), cut._reaches(xy, z))
 
 
 def test_tip_is_centre_minus_r():

@@ -374,10 +374,15 @@ def _drop_point(px, py, r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czm
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _drop_many(xy, r, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, CP, maxwin, floor):
+def _drop_many(xy, r, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, CP, maxwin, floor, warmv):
+    """:func:`_drop_point` per point: ``(max(drop, floor), contact triangle or -1)``.
+
+    ``warmv[p] >= 0`` is tried first at point ``p`` (a triangle near it: only the speed
+    depends on it); otherwise the contact of the previous point of the chunk.
+    """
     k = xy.shape[0]
     out = np.empty(k, dtype=np.float64)
-    hit = np.empty(k, dtype=np.bool_)
+    tri = np.empty(k, dtype=np.int64)
     nchunks = (k + _CHUNK - 1) // _CHUNK
     r2 = r * r
     for ch in prange(nchunks):
@@ -385,22 +390,24 @@ def _drop_many(xy, r, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, C
         cbound = np.empty(maxwin, dtype=np.float64)
         warm = -1
         for p in range(ch * _CHUNK, min(k, (ch + 1) * _CHUNK)):
+            w = warmv[p] if warmv[p] >= 0 else warm
             h, t = _drop_point(xy[p, 0], xy[p, 1], r, r2, T, B, gx0, gy0, cell, ncx, ncy,
-                               cstart, ctri, czmax, EB, CP, warm, cid, cbound, floor[p])
+                               cstart, ctri, czmax, EB, CP, w, cid, cbound, floor[p])
             out[p] = h
-            hit[p] = t >= 0
+            tri[p] = t
             if t >= 0:
                 warm = t
-    return out, hit
+    return out, tri
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _reaches_many(xy, thresh, r, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, CP, maxwin):
+def _reaches_many(xy, thresh, r, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, CP, maxwin, wa, wb):
     """Whether the drop height at each point reaches ``thresh`` (ties within
     ``2 * _PRUNE_SLACK`` either way): :func:`_drop_point` with the floor just below
-    ``thresh``, stopping at the first triangle that lifts the ball that high (the last
-    such triangle is tried first). Exact otherwise: the answer does not depend on the
-    order of the points."""
+    ``thresh``, stopping at the first triangle that lifts the ball that high. The
+    triangles ``wa[p]``, ``wb[p]`` (when ``>= 0``: the contacts of a move's ends) are
+    tried first, then the last triangle that answered. Exact otherwise: the answer does
+    not depend on the hints or on the order of the points."""
     k = xy.shape[0]
     out = np.zeros(k, dtype=np.bool_)
     nchunks = (k + _CHUNK - 1) // _CHUNK
@@ -410,8 +417,15 @@ def _reaches_many(xy, thresh, r, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, c
         cbound = np.empty(maxwin, dtype=np.float64)
         warm = -1
         for p in range(ch * _CHUNK, min(k, (ch + 1) * _CHUNK)):
+            fl = thresh[p] - 2.0 * _PRUNE_SLACK
+            if wa[p] >= 0 and _tri_drop(xy[p, 0], xy[p, 1], r, r2, T, wa[p]) > fl:
+                out[p] = True
+                continue
+            if wb[p] >= 0 and _tri_drop(xy[p, 0], xy[p, 1], r, r2, T, wb[p]) > fl:
+                out[p] = True
+                continue
             _, t = _drop_point(xy[p, 0], xy[p, 1], r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri,
-                               czmax, EB, CP, warm, cid, cbound, thresh[p] - 2.0 * _PRUNE_SLACK, True)
+                               czmax, EB, CP, warm, cid, cbound, fl, True)
             if t >= 0:
                 out[p] = True
                 warm = t
@@ -824,19 +838,24 @@ class BallCutter:
             return np.empty(0, dtype=np.float64)
         return self._drop(xy, np.full(xy.shape[0], -np.inf))[0]
 
-    def _drop(self, xy, floor):
-        """``(max(drop, floor), hit)``: ``hit`` is False where no triangle rises above ``floor``.
+    def _drop(self, xy, floor, warm=None):
+        """``(max(drop, floor), contact triangle)``: the triangle is -1 where no triangle
+        rises above ``floor``.
 
-        A finite floor prunes more cells and triangles from the start; where ``hit`` is
-        True the height is the exact drop height.
+        A finite floor prunes more cells and triangles from the start; where a triangle is
+        returned the height is the exact drop height. ``warm`` (per point, -1: none) are
+        triangles tried first, as hints: they change the speed, not the result.
         """
         gx0, gy0, cell, ncx, ncy = self._grid
+        if warm is None:
+            warm = np.full(len(xy), -1, dtype=np.int64)
         return _drop_many(xy, self.radius, self._T, self._B, gx0, gy0, cell, ncx, ncy,
                           self._cstart, self._ctri, self._czmax, self._EB, self._CP, self._maxwin,
-                          np.ascontiguousarray(floor, dtype=np.float64))
+                          np.ascontiguousarray(floor, dtype=np.float64),
+                          np.ascontiguousarray(warm, dtype=np.int64))
 
     # ------------------------------------------------------------------ CC -> CL
-    def cl_from_cc(self, cc, n):
+    def cl_from_cc(self, cc, n, contacts: bool = False):
         """Ball centres for cutter-contact points, lifted so that the ball cannot gouge.
 
         The ideal centre is ``cc + r n`` (the ball touches the surface at ``cc``); its XY is
@@ -851,6 +870,8 @@ class BallCutter:
             Cutter-contact points on the mesh, mm.
         n : (k, 3) float64
             Normals towards the tool (normalised here).
+        contacts : bool
+            Also return the triangle each centre rests on (hints for :meth:`settle`).
 
         Returns
         -------
@@ -859,6 +880,9 @@ class BallCutter:
         lift : (k,) float64
             ``drop - (cc + r n)_z``, mm: large values mean the normal was poor, the surface
             curves tighter than the ball (concave, radius < r) or ``cc`` is not reachable.
+        tri : (k,) int64
+            Only with ``contacts``: the cutter's own index of the triangle each centre
+            rests on (meaningful only to this cutter).
 
         Raises
         ------
@@ -878,10 +902,10 @@ class BallCutter:
         # The ball at the ideal centre touches the mesh at cc, so the drop height is at
         # least ideal_z (up to rounding): a floor a little below it prunes most of the
         # search. Points where nothing rose above the floor get a plain drop.
-        z, hit = self._drop(ideal[:, :2], ideal[:, 2] - _FLOOR_SLACK)
-        if not hit.all():
-            miss = np.flatnonzero(~hit)
-            z[miss] = self.drop(ideal[miss, :2])
+        z, tri = self._drop(ideal[:, :2], ideal[:, 2] - _FLOOR_SLACK)
+        miss = np.flatnonzero(tri < 0)
+        if miss.size:
+            z[miss], tri[miss] = self._drop(ideal[miss, :2], np.full(miss.size, -np.inf))
         miss = np.flatnonzero(~np.isfinite(z))
         if miss.size:
             i = miss[0]
@@ -890,6 +914,8 @@ class BallCutter:
                 f"(first: point {i}, cc = {cc[i].tolist()})")
         center = ideal.copy()
         center[:, 2] = z
+        if contacts:
+            return center, z - ideal[:, 2], tri
         return center, z - ideal[:, 2]
 
     # ------------------------------------------------------------------ chords
@@ -983,7 +1009,7 @@ class BallCutter:
                 P = self._split_safe(P, seg, thresh)
         return P
 
-    def settle(self, centers, tol: float, probes: int = 3, max_iter: int = 4) -> tuple[np.ndarray, int, int]:
+    def settle(self, centers, tol: float, probes: int = 3, max_iter: int = 4, contacts=None) -> tuple:
         """Insert drop-cutter points where a straight centre move floats above the drop surface.
 
         The other side of :meth:`refine`. Where the drop surface ``D`` has a valley along a
@@ -1017,6 +1043,10 @@ class BallCutter:
             Points probed on a move that floats (the crease step needs three or more).
         max_iter : int
             Rounds of insertion.
+        contacts : (k,) int, optional
+            The triangle each centre rests on, as :meth:`cl_from_cc` returns it (-1:
+            unknown). Hints only: tried first in the tests and drops near the centres,
+            they change the speed, not the result.
 
         Returns
         -------
@@ -1029,11 +1059,14 @@ class BallCutter:
         unresolved : int
             Moves made in the last round and not tested again (0 when the rounds ended
             before ``max_iter``).
+        contacts : (k',) int64
+            Only when ``contacts`` is given: the hints for the output points.
 
         Raises
         ------
         PlanningError
-            Bad shapes, non-finite values, ``tol`` not positive, ``probes < 1``.
+            Bad shapes, non-finite values, ``tol`` not positive, ``probes < 1``,
+            ``contacts`` not one integer per centre.
         """
         P = _as_points(centers, 3, "centers")
         tol = float(tol)
@@ -1042,8 +1075,10 @@ class BallCutter:
         probes = int(probes)
         if probes < 1:
             raise PlanningError(f"cutter: settle needs at least one probe, got {probes}")
+        want = contacts is not None
+        tri = self._hints(contacts, len(P))
         if len(P) < 2:
-            return P.copy(), 0, 0
+            return (P.copy(), 0, 0, tri) if want else (P.copy(), 0, 0)
         half = 0.5 * tol
         t = np.arange(1, probes + 1) / (probes + 1)
         d = np.diff(P, axis=0)
@@ -1054,12 +1089,19 @@ class BallCutter:
             if seg.size == 0:
                 break
             mid = 0.5 * (P[seg] + P[seg + 1])
-            seg = seg[~self._reaches(mid[:, :2], mid[:, 2] - half)]
+            seg = seg[~self._reaches(mid[:, :2], mid[:, 2] - half, tri[seg], tri[seg + 1])]
             if seg.size == 0:
                 break
             a, v = P[seg], P[seg + 1] - P[seg]
             Q = a[:, None, :] + t[None, :, None] * v[:, None, :]
-            D = self.drop(Q[:, :, :2].reshape(-1, 2)).reshape(len(seg), probes)
+            # hints: the first probe starts from the move's start contact, the last from
+            # its end contact, the others from the probe before
+            W = np.full((len(seg), probes), -1, dtype=np.int64)
+            W[:, -1] = tri[seg + 1]
+            W[:, 0] = tri[seg]
+            D, DT = self._drop(Q[:, :, :2].reshape(-1, 2), np.full(Q.shape[0] * probes, -np.inf), W.ravel())
+            D = D.reshape(len(seg), probes)
+            DT = DT.reshape(len(seg), probes)
             lift = Q[:, :, 2] - D
             lift[~np.isfinite(lift)] = -np.inf
             rows = np.arange(len(seg))
@@ -1085,12 +1127,13 @@ class BallCutter:
                 vt = np.isfinite(tv) & (tv > t1) & (tv < t2) & (s2 > s1)
                 if vt.any():
                     qv = a[vt] + tv[vt, None] * v[vt]
-                    dv = self.drop(qv[:, :2])
+                    dv, dt = self._drop(qv[:, :2], np.full(len(qv), -np.inf), DT[rows[vt], j[vt]])
                     lv = qv[:, 2] - dv
                     better = np.isfinite(lv) & (lv > lift[rows[vt], j[vt]])
                     idx = rows[vt][better]
                     tj[idx] = tv[vt][better]
                     D[idx, j[idx]] = dv[better]
+                    DT[idx, j[idx]] = dt[better]
                     lift[idx, j[idx]] = lv[better]
             new = a + tj[:, None] * v
             new[:, 2] = D[rows, j]
@@ -1098,19 +1141,40 @@ class BallCutter:
             if not keep.any():
                 break
             P, check = _insert(P, seg[keep], new[keep])
+            tri = np.insert(tri, seg[keep] + 1, DT[rows, j][keep])
             d = np.diff(P, axis=0)
             check &= np.hypot(d[:, 0], d[:, 1]) > 1e-9
             inserted += int(keep.sum())
         else:
-            return P, inserted, int(check.sum())
-        return P, inserted, 0
+            left = int(check.sum())
+            return (P, inserted, left, tri) if want else (P, inserted, left)
+        return (P, inserted, 0, tri) if want else (P, inserted, 0)
 
-    def _reaches(self, xy, z):
-        """Whether the drop height at ``xy`` is at least ``z`` (bool per point; ties within 2e-9 mm either way)."""
+    def _hints(self, contacts, k):
+        """Contact-triangle hints as int64 ``(k,)`` (-1 for none), checked: the kernels
+        index the triangle table with them."""
+        if contacts is None:
+            return np.full(k, -1, dtype=np.int64)
+        c = np.asarray(contacts)
+        if c.shape != (k,) or not np.issubdtype(c.dtype, np.integer):
+            raise PlanningError(f"cutter: contacts must be {k} integers (one per centre), got shape {c.shape} "
+                                f"and dtype {c.dtype}")
+        bad = np.flatnonzero((c < -1) | (c >= len(self._T)))
+        if bad.size:
+            raise PlanningError(f"cutter: {bad.size} contacts are not triangles of this cutter "
+                                f"(first: centre {bad[0]}, {int(c[bad[0]])})")
+        return np.ascontiguousarray(c, dtype=np.int64)
+
+    def _reaches(self, xy, z, wa=None, wb=None):
+        """Whether the drop height at ``xy`` is at least ``z`` (bool per point; ties within
+        2e-9 mm either way). ``wa``, ``wb``: triangles tried first (hints, -1: none)."""
         gx0, gy0, cell, ncx, ncy = self._grid
+        none = np.full(len(xy), -1, dtype=np.int64)
+        wa = none if wa is None else np.ascontiguousarray(wa, dtype=np.int64)
+        wb = none if wb is None else np.ascontiguousarray(wb, dtype=np.int64)
         return _reaches_many(np.ascontiguousarray(xy, dtype=np.float64), np.ascontiguousarray(z, dtype=np.float64),
                              self.radius, self._T, self._B, gx0, gy0, cell, ncx, ncy, self._cstart, self._ctri,
-                             self._czmax, self._EB, self._CP, self._maxwin)
+                             self._czmax, self._EB, self._CP, self._maxwin, wa, wb)
 
     def _l_safe(self, thresh):
         """``L_safe = 2 sqrt(r^2 - (r - thresh)^2)``, without cancellation: the longest move

@@ -67,6 +67,7 @@ class _Pass:
         self.cc, self.nn, self.pending = [], [], 0
         self.centres, self.lifts = [], []
         self.last = None  # last refined centre: the first point of the next batch's moves
+        self.last_tri = -1  # the triangle it rests on (a hint for the cutter)
 
 
 class PassBuilder:
@@ -262,22 +263,24 @@ class PassBuilder:
         nn = np.concatenate(p.nn)
         p.cc, p.nn, p.pending = [], [], 0
         if len(cc):
-            centres, lift = self.cutter.cl_from_cc(cc, nn)  # finite, or it raises
+            centres, lift, tri = self.cutter.cl_from_cc(cc, nn, contacts=True)  # finite, or it raises
             p.lifts.append(lift)
             # The move from the last batch's end into this batch is checked here.
             if p.last is not None:
                 centres = np.vstack([p.last[None], centres])
+                tri = np.concatenate([[p.last_tri], tri])
             # no move floats more than settle_tol above the drop surface (the material a
             # chord leaves over a groove the ball cannot enter), then no move cuts more
             # than e / 2 into the part (an exact bound): half of the gouge budget e, the
             # other half left to the mesh facets between samples
             if self.settle_tol > 0:
-                centres, n, left = self.cutter.settle(centres, self.settle_tol)
+                centres, n, left, tri = self.cutter.settle(centres, self.settle_tol, contacts=tri)
                 self.n_settled += n
                 self.n_settle_unresolved += left
             centres = self.cutter.refine(centres, self.e)
             if p.last is not None:
                 centres = centres[1:]
             p.centres.append(centres)
-            p.last = centres[-1]
+            p.last = centres[-1]  # settle and refine keep the ends: tri[-1] is its contact
+            p.last_tri = int(tri[-1])
         self.timings["cutter"] += time.perf_counter() - t0

@@ -667,32 +667,47 @@ class TestSettle:
         with pytest.raises(PlanningError, match="non-finite"):
             cut.settle(np.array([[0.0, 0.0, np.nan], [1.0, 0.0, 4.0]]), 0.01)
 
-    def test_contact_hints_change_nothing(self):
+    @pytest.mark.parametrize("probes", [3, 2, 1])
+    def test_contact_hints_change_nothing(self, probes):
         # hints only decide where the searches start: the right triangles (from
-        # cl_from_cc), wrong ones and none give the same points, point for point
+        # cl_from_cc), nearby wrong ones (the next centre's), far ones and none give the
+        # same points, point for point (279 centres: more than one chunk of the kernels)
         m = syn.v_groove()
         cut = BallCutter(m.V, m.F, R_BALL)
-        x = np.arange(-6.3, 6.0, 1.7)  # the crease x = 0 inside a move
+        x = np.arange(-6.3, 6.0, 0.4)  # the crease x = 0 inside a move
         y = np.linspace(-8.0, 8.0, 9)
         xy = np.vstack([np.column_stack([x if k % 2 == 0 else x[::-1], np.full_like(x, yk)])
                         for k, yk in enumerate(y)])
         cc = np.column_stack([xy, np.zeros(len(xy))])
         n = np.tile([0.0, 0.0, 1.0], (len(xy), 1))
         P, _, tri = cut.cl_from_cc(cc, n, contacts=True)
-        ref = cut.settle(P, 0.005)
+        assert len(P) > 256
+        ref = cut.settle(P, 0.005, probes=probes)
         assert ref[1] > 0
-        wrong = np.random.default_rng(4).integers(0, len(cut._T), len(P))
-        for hint in (tri, wrong, np.full(len(P), -1)):
-            Q, k, left, qtri = cut.settle(P, 0.005, contacts=hint)
+        far = np.random.default_rng(4).integers(0, len(cut._T), len(P))
+        for hint in (tri, np.roll(tri, 1), far, np.full(len(P), -1)):
+            Q, k, left, qtri = cut.settle(P, 0.005, probes=probes, contacts=hint)
             np.testing.assert_array_equal(Q, ref[0])
             assert (k, left) == ref[1:]
             assert len(qtri) == len(Q)
-        # with the right hints the inserted points carry the triangles they rest on
-        Q, _, _, qtri = cut.settle(P, 0.005, contacts=tri)
+        # with the right hints every output point carries the triangle it rests on
+        Q, _, _, qtri = cut.settle(P, 0.005, probes=probes, contacts=tri)
         from conformill.cutter import _tri_drop
 
         h = np.array([_tri_drop(x, yy, R_BALL, R_BALL ** 2, cut._T, t) for (x, yy, _), t in zip(Q, qtri)])
         np.testing.assert_allclose(h, Q[:, 2], atol=1e-12)
+
+    def test_contacts_of_short_inputs(self):
+        m = syn.plane(size=20.0, spacing=5.0)
+        cut = BallCutter(m.V, m.F, R_BALL)
+        Q, n, left, tri = cut.settle(np.array([[0.0, 0.0, 4.0]]), 0.01, contacts=[3])
+        assert Q.shape == (1, 3) and tri.tolist() == [3] and n == left == 0
+        Q, n, left, tri = cut.settle(np.empty((0, 3)), 0.01, contacts=[])
+        assert Q.shape == (0, 3) and tri.shape == (0,)
+        hint = np.array([2, 5])
+        _, _, _, tri = cut.settle(np.array([[0.0, 0.0, 4.0], [1.0, 0.0, 4.0]]), 0.01, contacts=hint)
+        tri[0] = 7
+        assert hint[0] == 2  # a copy, not the caller's array
 
     def test_bad_contacts_are_refused(self):
         m = syn.plane(size=20.0, spacing=5.0)
@@ -716,8 +731,12 @@ class TestSettle:
         z[~np.isfinite(D)] = 0.0
         far = np.abs(z - D) > 1e-6  # away from the tie
         np.testing.assert_array_equal(cut._reaches(xy, z)[far], (D >= z)[far])
-        wrong = np.random.default_rng(7).integers(-1, len(cut._T), (2, len(xy)))
-        np.testing.assert_array_equal(cut._reaches(xy, z, *wrong), cut._reaches(xy, z))
+        # hints: the contacts themselves, the next point's (near, wrong), random ones
+        _, tri = cut._drop(xy, np.full(len(xy), -np.inf))
+        plain = cut._reaches(xy, z)
+        for wa, wb in ((tri, tri), (np.roll(tri, 1), np.roll(tri, -1)),
+                       np.random.default_rng(7).integers(-1, len(cut._T), (2, len(xy)))):
+            np.testing.assert_array_equal(cut._reaches(xy, z, wa, wb), plain)
 
 
 def test_tip_is_centre_minus_r():

@@ -79,14 +79,21 @@ def test_batches_and_worker_give_the_same_program(recorded, batch, threaded):
     if threaded and not threads_can_overlap():
         pytest.skip("numba's threading layer here does not allow two threads")
     assert seen["kw"]["settle_tol"] > 0 and res.report["cutter"]["settled_points"] > 0
-    (passes, ids, lifts), b = _build(seen, threaded, batch)
-    assert b.n_settled == res.report["cutter"]["settled_points"]
+    (passes, ids, lifts), builder = _build(seen, threaded, batch)
+    b_done = builder._done
+    assert builder.n_settled == res.report["cutter"]["settled_points"]
     assert ids == res.toolpath.pass_ids
     assert len(passes) == len(res.toolpath.passes)
     for a, b in zip(passes, res.toolpath.passes):
         assert np.array_equal(a, b)
     (_, _, whole_lifts), _ = _build(seen, False, 10**9)
     assert np.array_equal(np.concatenate(lifts), np.concatenate(whole_lifts))
+    # the hint handed to the next batch is the triangle the last centre rests on
+    from conformill.cutter import _tri_drop
+
+    for p in b_done:
+        assert p.last_tri >= 0
+        assert _tri_drop(p.last[0], p.last[1], R, R * R, builder.cutter._T, p.last_tri) == p.last[2]
     # every path's CC points are cut, and the inner points of every link
     assert len(np.concatenate(lifts)) >= sum(len(c) for c in res.cc_paths)
 

@@ -406,8 +406,8 @@ def _reaches_many(xy, thresh, r, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, c
     ``2 * _PRUNE_SLACK`` either way): :func:`_drop_point` with the floor just below
     ``thresh``, stopping at the first triangle that lifts the ball that high. The
     triangles ``wa[p]``, ``wb[p]`` (when ``>= 0``: the contacts of a move's ends) are
-    tried first, then the last triangle that answered. Exact otherwise: the answer does
-    not depend on the hints or on the order of the points."""
+    tried first, then the last triangle the search found in this chunk. Exact otherwise:
+    the answer does not depend on the hints or on the order of the points."""
     k = xy.shape[0]
     out = np.zeros(k, dtype=np.bool_)
     nchunks = (k + _CHUNK - 1) // _CHUNK
@@ -421,7 +421,7 @@ def _reaches_many(xy, thresh, r, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, c
             if wa[p] >= 0 and _tri_drop(xy[p, 0], xy[p, 1], r, r2, T, wa[p]) > fl:
                 out[p] = True
                 continue
-            if wb[p] >= 0 and _tri_drop(xy[p, 0], xy[p, 1], r, r2, T, wb[p]) > fl:
+            if wb[p] >= 0 and wb[p] != wa[p] and _tri_drop(xy[p, 0], xy[p, 1], r, r2, T, wb[p]) > fl:
                 out[p] = True
                 continue
             _, t = _drop_point(xy[p, 0], xy[p, 1], r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri,
@@ -847,12 +847,10 @@ class BallCutter:
         triangles tried first, as hints: they change the speed, not the result.
         """
         gx0, gy0, cell, ncx, ncy = self._grid
-        if warm is None:
-            warm = np.full(len(xy), -1, dtype=np.int64)
+        warm = self._hints(warm, len(xy))  # checked: the kernel indexes with them
         return _drop_many(xy, self.radius, self._T, self._B, gx0, gy0, cell, ncx, ncy,
                           self._cstart, self._ctri, self._czmax, self._EB, self._CP, self._maxwin,
-                          np.ascontiguousarray(floor, dtype=np.float64),
-                          np.ascontiguousarray(warm, dtype=np.int64))
+                          np.ascontiguousarray(floor, dtype=np.float64), warm)
 
     # ------------------------------------------------------------------ CC -> CL
     def cl_from_cc(self, cc, n, contacts: bool = False):
@@ -1060,7 +1058,9 @@ class BallCutter:
             Moves made in the last round and not tested again (0 when the rounds ended
             before ``max_iter``).
         contacts : (k',) int64
-            Only when ``contacts`` is given: the hints for the output points.
+            Only when ``contacts`` is given: hints for the output points, to pass on to
+            the next call (the input hints, as given, and the exact contact of every
+            inserted point).
 
         Raises
         ------
@@ -1095,7 +1095,7 @@ class BallCutter:
             a, v = P[seg], P[seg + 1] - P[seg]
             Q = a[:, None, :] + t[None, :, None] * v[:, None, :]
             # hints: the first probe starts from the move's start contact, the last from
-            # its end contact, the others from the probe before
+            # its end contact, the others from the last contact found (speed only)
             W = np.full((len(seg), probes), -1, dtype=np.int64)
             W[:, -1] = tri[seg + 1]
             W[:, 0] = tri[seg]
@@ -1151,11 +1151,13 @@ class BallCutter:
         return (P, inserted, 0, tri) if want else (P, inserted, 0)
 
     def _hints(self, contacts, k):
-        """Contact-triangle hints as int64 ``(k,)`` (-1 for none), checked: the kernels
-        index the triangle table with them."""
+        """Contact-triangle hints as a new int64 ``(k,)`` array (-1 for none), checked:
+        the kernels index the triangle table with them."""
         if contacts is None:
             return np.full(k, -1, dtype=np.int64)
         c = np.asarray(contacts)
+        if k == 0 and c.shape == (0,):
+            return np.empty(0, dtype=np.int64)
         if c.shape != (k,) or not np.issubdtype(c.dtype, np.integer):
             raise PlanningError(f"cutter: contacts must be {k} integers (one per centre), got shape {c.shape} "
                                 f"and dtype {c.dtype}")
@@ -1163,15 +1165,14 @@ class BallCutter:
         if bad.size:
             raise PlanningError(f"cutter: {bad.size} contacts are not triangles of this cutter "
                                 f"(first: centre {bad[0]}, {int(c[bad[0]])})")
-        return np.ascontiguousarray(c, dtype=np.int64)
+        return np.array(c, dtype=np.int64)
 
     def _reaches(self, xy, z, wa=None, wb=None):
         """Whether the drop height at ``xy`` is at least ``z`` (bool per point; ties within
         2e-9 mm either way). ``wa``, ``wb``: triangles tried first (hints, -1: none)."""
         gx0, gy0, cell, ncx, ncy = self._grid
-        none = np.full(len(xy), -1, dtype=np.int64)
-        wa = none if wa is None else np.ascontiguousarray(wa, dtype=np.int64)
-        wb = none if wb is None else np.ascontiguousarray(wb, dtype=np.int64)
+        wa = self._hints(wa, len(xy))
+        wb = self._hints(wb, len(xy))
         return _reaches_many(np.ascontiguousarray(xy, dtype=np.float64), np.ascontiguousarray(z, dtype=np.float64),
                              self.radius, self._T, self._B, gx0, gy0, cell, ncx, ncy, self._cstart, self._ctri,
                              self._czmax, self._EB, self._CP, self._maxwin, wa, wb)

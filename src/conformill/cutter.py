@@ -374,11 +374,14 @@ def _drop_point(px, py, r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czm
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _drop_many(xy, r, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, CP, maxwin, floor, warmv):
+def _drop_many(xy, r, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, CP, maxwin, floor, wa, wb, first):
     """:func:`_drop_point` per point: ``(max(drop, floor), contact triangle or -1)``.
 
-    ``warmv[p] >= 0`` is tried first at point ``p`` (a triangle near it: only the speed
-    depends on it); otherwise the contact of the previous point of the chunk.
+    Hints, triangles near the point (-1: none; only the speed depends on them): ``wb[p]``
+    is tried first and, where it rises above the floor, raises the floor to its height;
+    ``wa[p]`` is the warm start, otherwise the contact found at the previous point of the
+    chunk. With ``first`` each point stops at the first triangle rising above its floor:
+    only whether one does (a triangle, not -1) is then exact.
     """
     k = xy.shape[0]
     out = np.empty(k, dtype=np.float64)
@@ -390,46 +393,27 @@ def _drop_many(xy, r, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, C
         cbound = np.empty(maxwin, dtype=np.float64)
         warm = -1
         for p in range(ch * _CHUNK, min(k, (ch + 1) * _CHUNK)):
-            w = warmv[p] if warmv[p] >= 0 else warm
+            w = wa[p] if wa[p] >= 0 else warm
+            f = floor[p]
+            tb = -1
+            if wb[p] >= 0 and wb[p] != w:
+                hb = _tri_drop(xy[p, 0], xy[p, 1], r, r2, T, wb[p])
+                if hb > f:
+                    f = hb
+                    tb = wb[p]
+            if first and tb >= 0:
+                out[p] = f
+                tri[p] = tb
+                continue
             h, t = _drop_point(xy[p, 0], xy[p, 1], r, r2, T, B, gx0, gy0, cell, ncx, ncy,
-                               cstart, ctri, czmax, EB, CP, w, cid, cbound, floor[p])
+                               cstart, ctri, czmax, EB, CP, w, cid, cbound, f, first)
             out[p] = h
-            tri[p] = t
             if t >= 0:
+                tri[p] = t
                 warm = t
+            else:
+                tri[p] = tb  # nothing above the second hint's height: it is the drop
     return out, tri
-
-
-@njit(cache=True, nogil=True, parallel=True)
-def _reaches_many(xy, thresh, r, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, CP, maxwin, wa, wb):
-    """Whether the drop height at each point reaches ``thresh`` (ties within
-    ``2 * _PRUNE_SLACK`` either way): :func:`_drop_point` with the floor just below
-    ``thresh``, stopping at the first triangle that lifts the ball that high. The
-    triangles ``wa[p]``, ``wb[p]`` (when ``>= 0``: the contacts of a move's ends) are
-    tried first, then the last triangle the search found in this chunk. Exact otherwise:
-    the answer does not depend on the hints or on the order of the points."""
-    k = xy.shape[0]
-    out = np.zeros(k, dtype=np.bool_)
-    nchunks = (k + _CHUNK - 1) // _CHUNK
-    r2 = r * r
-    for ch in prange(nchunks):
-        cid = np.empty(maxwin, dtype=np.int64)
-        cbound = np.empty(maxwin, dtype=np.float64)
-        warm = -1
-        for p in range(ch * _CHUNK, min(k, (ch + 1) * _CHUNK)):
-            fl = thresh[p] - 2.0 * _PRUNE_SLACK
-            if wa[p] >= 0 and _tri_drop(xy[p, 0], xy[p, 1], r, r2, T, wa[p]) > fl:
-                out[p] = True
-                continue
-            if wb[p] >= 0 and wb[p] != wa[p] and _tri_drop(xy[p, 0], xy[p, 1], r, r2, T, wb[p]) > fl:
-                out[p] = True
-                continue
-            _, t = _drop_point(xy[p, 0], xy[p, 1], r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri,
-                               czmax, EB, CP, warm, cid, cbound, fl, True)
-            if t >= 0:
-                out[p] = True
-                warm = t
-    return out
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -838,19 +822,22 @@ class BallCutter:
             return np.empty(0, dtype=np.float64)
         return self._drop(xy, np.full(xy.shape[0], -np.inf))[0]
 
-    def _drop(self, xy, floor, warm=None):
+    def _drop(self, xy, floor, wa=None, wb=None, first=False):
         """``(max(drop, floor), contact triangle)``: the triangle is -1 where no triangle
         rises above ``floor``.
 
         A finite floor prunes more cells and triangles from the start; where a triangle is
-        returned the height is the exact drop height. ``warm`` (per point, -1: none) are
-        triangles tried first, as hints: they change the speed, not the result.
+        returned the height is the exact drop height. ``wa``, ``wb`` (per point, -1: none)
+        are triangles tried first, as hints: they change the speed, not the result. With
+        ``first`` the search at a point stops at the first triangle rising above its floor
+        (only whether one does is then exact: see :func:`_drop_many`).
         """
         gx0, gy0, cell, ncx, ncy = self._grid
-        warm = self._hints(warm, len(xy))  # checked: the kernel indexes with them
-        return _drop_many(xy, self.radius, self._T, self._B, gx0, gy0, cell, ncx, ncy,
-                          self._cstart, self._ctri, self._czmax, self._EB, self._CP, self._maxwin,
-                          np.ascontiguousarray(floor, dtype=np.float64), warm)
+        wa = self._hints(wa, len(xy))  # checked: the kernel indexes with them
+        wb = self._hints(wb, len(xy))
+        return _drop_many(np.ascontiguousarray(xy, dtype=np.float64), self.radius, self._T, self._B,
+                          gx0, gy0, cell, ncx, ncy, self._cstart, self._ctri, self._czmax, self._EB, self._CP,
+                          self._maxwin, np.ascontiguousarray(floor, dtype=np.float64), wa, wb, bool(first))
 
     # ------------------------------------------------------------------ CC -> CL
     def cl_from_cc(self, cc, n, contacts: bool = False):
@@ -1169,13 +1156,11 @@ class BallCutter:
 
     def _reaches(self, xy, z, wa=None, wb=None):
         """Whether the drop height at ``xy`` is at least ``z`` (bool per point; ties within
-        2e-9 mm either way). ``wa``, ``wb``: triangles tried first (hints, -1: none)."""
-        gx0, gy0, cell, ncx, ncy = self._grid
-        wa = self._hints(wa, len(xy))
-        wb = self._hints(wb, len(xy))
-        return _reaches_many(np.ascontiguousarray(xy, dtype=np.float64), np.ascontiguousarray(z, dtype=np.float64),
-                             self.radius, self._T, self._B, gx0, gy0, cell, ncx, ncy, self._cstart, self._ctri,
-                             self._czmax, self._EB, self._CP, self._maxwin, wa, wb)
+        2e-9 mm either way): a drop with the floor just below ``z`` that stops at the
+        first triangle rising above it. ``wa``, ``wb``: triangles tried first (hints, -1:
+        none; the contacts of a move's ends)."""
+        z = np.asarray(z, dtype=np.float64) - 2.0 * _PRUNE_SLACK
+        return self._drop(xy, z, wa, wb, first=True)[1] >= 0
 
     def _l_safe(self, thresh):
         """``L_safe = 2 sqrt(r^2 - (r - thresh)^2)``, without cancellation: the longest move

@@ -737,6 +737,8 @@ class TestSettle:
         for wa, wb in ((tri, tri), (np.roll(tri, 1), np.roll(tri, -1)),
                        np.random.default_rng(7).integers(-1, len(cut._T), (2, len(xy)))):
             np.testing.assert_array_equal(cut._reaches(xy, z, wa, wb), plain)
+            # and the drop heights themselves (the second hint raises the floor)
+            np.testing.assert_array_equal(cut._drop(xy, np.full(len(xy), -np.inf), wa, wb)[0], D)
 
 
 def test_tip_is_centre_minus_r():

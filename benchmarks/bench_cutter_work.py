@@ -85,9 +85,9 @@ def _same(a, b) -> bool:
 
 def replay(cut, calls, rounds=None):
     """Run the recorded calls again; core seconds per step. With ``rounds`` (a dict), also
-    count per round of settle and refine the moves tested and the points inserted."""
+    count per round the moves settle tests, and the moves refine checks and splits."""
     t = dict.fromkeys(STEPS, 0.0)
-    state = {"step": None, "round": 0}
+    state = {"round": 0}
     if rounds is not None:
         reaches, worst = cut._reaches, cut._worst_points
 
@@ -114,9 +114,6 @@ def replay(cut, calls, rounds=None):
             t[step] += time.process_time() - t0
             if not _same(got, out):
                 raise SystemExit(f"replay of {step} differs from the plan's output: the replay is not the plan's work")
-            if rounds is not None and step == "settle":
-                # the settle rounds' insertions: the calls return them in total only
-                rounds.setdefault(("settle", "inserted"), [0, 0])[1] += int(got[1])
     finally:
         if rounds is not None:
             del cut._reaches, cut._worst_points  # back to the class's methods
@@ -172,7 +169,7 @@ def main(argv=None) -> int:
     for s in STEPS:
         print(f"  {s:<11} {core[s]:7.2f} {n_in[s]:10d} {n_out[s] - n_in[s]:8d} {1e6 * core[s] / max(n_out[s], 1):17.2f}")
     for step in ("settle", "refine"):
-        rs = sorted(k[1] for k in rounds if k[0] == step and k[1] != "inserted")
+        rs = sorted(k[1] for k in rounds if k[0] == step)
         what = "moves tested" if step == "settle" else "moves checked / split"
         cells = [f"{i}: {rounds[(step, i)][0]}" + (f" / {rounds[(step, i)][1]}" if step == "refine" else "") for i in rs]
         print(f"  {step} rounds, {what}: " + ", ".join(cells))

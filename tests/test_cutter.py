@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from conformill.cutter import BallCutter
+from conformill.cutter import BallCutter, _tri_drop
 from conformill.errors import MeshError, PlanningError
 from conformill.mesh import synthetic as syn
 
@@ -331,8 +331,6 @@ class TestClFromCC:
         np.testing.assert_allclose(np.linalg.norm(centre - cc, axis=1), R_BALL, atol=1e-10)
 
     def test_contacts_are_the_triangles_the_centres_rest_on(self):
-        from conformill.cutter import _tri_drop
-
         m = syn.freeform_patch(spacing=2.0, jitter=0.3)
         cut = BallCutter(m.V, m.F, 3.0)
         xy = np.random.default_rng(3).uniform(-30, 30, (300, 2))
@@ -581,8 +579,9 @@ class TestSettle:
     def test_v_groove_crease_in_one_point(self):
         # The ball rests on one wall of z = |x| tan(a): D(x) = |x| tan(a) + r / cos(a), a V
         # with its crease at x = 0 where the ball sits wedged. A move from x = -1 to 1.5
-        # floats 1.2 tan(a) above it there; the crease is found exactly (the lines through
-        # the probes on each wall meet on it), one point, and nothing floats any more.
+        # floats 1.2 tan(a) above it there; the crease is found exactly (the tangent lines
+        # of D at the ends, the walls' offsets, meet on it), one point, and nothing floats
+        # any more.
         a = np.radians(30.0)
         m = syn.v_groove()
         cut = BallCutter(m.V, m.F, R_BALL)
@@ -596,18 +595,18 @@ class TestSettle:
         np.testing.assert_allclose(Q[1], [0.0, 2.0, R_BALL / np.cos(a)], atol=1e-9)
         assert _max_float(cut, Q) <= 1e-9
 
-    @pytest.mark.parametrize("x0, x1, points", [(-0.9, 2.1, 1), (-2.1, 0.9, 1), (-0.3, 2.7, 2), (-2.7, 0.3, 2)])
-    def test_v_groove_crease_off_the_middle(self, x0, x1, points):
-        # the crease at t = 0.3 / 0.7 of the move lies between the first and the last probe
-        # (t = 1/4 ... 3/4): found in one round; at t = 0.1 / 0.9 in two (the probe first)
+    @pytest.mark.parametrize("x0, x1", [(-0.9, 2.1), (-2.1, 0.9), (-0.3, 2.7), (-2.7, 0.3), (-0.05, 2.95)])
+    def test_v_groove_crease_off_the_middle(self, x0, x1):
+        # the tangent lines of D at the ends (the two walls' planes) meet on the crease
+        # wherever it lies on the move (t = 0.3, 0.7, 0.1, 0.9, 0.017): one drop, one point
         a = np.radians(30.0)
         m = syn.v_groove()
         cut = BallCutter(m.V, m.F, R_BALL)
         x = np.array([x0, x1])
         P = np.column_stack([x, [-3.0, -3.0], np.abs(x) * np.tan(a) + R_BALL / np.cos(a)])
-        Q, n, left = cut.settle(P, 0.005)
-        assert n == points == len(Q) - 2 and left == 0
-        np.testing.assert_allclose(Q[np.argmin(np.abs(Q[:, 0]))], [0.0, -3.0, R_BALL / np.cos(a)], atol=1e-9)
+        Q, n, left = cut.settle(P, 0.005, steps=1)
+        assert n == 1 == len(Q) - 2 and left == 0
+        np.testing.assert_allclose(Q[1], [0.0, -3.0, R_BALL / np.cos(a)], atol=1e-9)
         assert _max_float(cut, Q) <= 1e-9
 
     def test_move_over_a_gap_is_left_alone(self):
@@ -662,14 +661,14 @@ class TestSettle:
         assert n == 0 and left == 0 and Q.shape == (1, 3)
         with pytest.raises(PlanningError, match="settle tolerance must be positive"):
             cut.settle(np.zeros((2, 3)), 0.0)
-        with pytest.raises(PlanningError, match="at least one probe"):
-            cut.settle(np.zeros((2, 3)), 0.01, probes=0)
+        with pytest.raises(PlanningError, match="at least one step"):
+            cut.settle(np.zeros((2, 3)), 0.01, steps=0)
         with pytest.raises(PlanningError, match="non-finite"):
             cut.settle(np.array([[0.0, 0.0, np.nan], [1.0, 0.0, 4.0]]), 0.01)
 
-    @pytest.mark.parametrize("probes", [3, 2, 1])
-    def test_contact_hints_change_nothing(self, probes):
-        # hints only decide where the searches start: the right triangles (from
+    @pytest.mark.parametrize("steps", [3, 2, 1])
+    def test_contact_hints_change_nothing(self, steps):
+        # hints are checked before their slopes are used: the right triangles (from
         # cl_from_cc), nearby wrong ones (the next centre's), far ones and none give the
         # same points, point for point (279 centres: more than one chunk of the kernels)
         m = syn.v_groove()
@@ -682,20 +681,42 @@ class TestSettle:
         n = np.tile([0.0, 0.0, 1.0], (len(xy), 1))
         P, _, tri = cut.cl_from_cc(cc, n, contacts=True)
         assert len(P) > 256
-        ref = cut.settle(P, 0.005, probes=probes)
+        ref = cut.settle(P, 0.005, steps=steps)
         assert ref[1] > 0
         far = np.random.default_rng(4).integers(0, len(cut._T), len(P))
         for hint in (tri, np.roll(tri, 1), far, np.full(len(P), -1)):
-            Q, k, left, qtri = cut.settle(P, 0.005, probes=probes, contacts=hint)
+            Q, k, left, qtri = cut.settle(P, 0.005, steps=steps, contacts=hint)
             np.testing.assert_array_equal(Q, ref[0])
             assert (k, left) == ref[1:]
             assert len(qtri) == len(Q)
         # with the right hints every output point carries the triangle it rests on
-        Q, _, _, qtri = cut.settle(P, 0.005, probes=probes, contacts=tri)
-        from conformill.cutter import _tri_drop
-
+        Q, _, _, qtri = cut.settle(P, 0.005, steps=steps, contacts=tri)
         h = np.array([_tri_drop(x, yy, R_BALL, R_BALL ** 2, cut._T, t) for (x, yy, _), t in zip(Q, qtri)])
         np.testing.assert_allclose(h, Q[:, 2], atol=1e-12)
+
+    def test_slopes_from_contacts_match_the_drop_surface(self):
+        # D's slope along a move, from the contact point alone, against central differences
+        # of the drop: facet, edge and vertex contacts on a jittered dome and a V-groove;
+        # a wrong hint is replaced by the triangle that holds the centre up
+        rng = np.random.default_rng(11)
+        for m in (syn.sphere_cap(R=12.0, radius_xy=10.0, spacing=1.5, jitter=0.3), syn.v_groove()):
+            cut = BallCutter(m.V, m.F, R_BALL)
+            xy = rng.uniform(-5.0, 5.0, (400, 2))
+            z, tri = cut._drop(xy, np.full(len(xy), -np.inf))
+            P = np.column_stack([xy, z])
+            v = np.column_stack([rng.normal(size=(len(xy), 2)), np.zeros(len(xy))])
+            v /= np.linalg.norm(v, axis=1)[:, None]
+            dt = 1e-6
+            zp, zm = cut.drop(xy + dt * v[:, :2]), cut.drop(xy - dt * v[:, :2])
+            fd_r, fd_l = (zp - z) / dt, (z - zm) / dt
+            smooth = np.abs(fd_r - fd_l) < 1e-4  # away from D's creases
+            assert smooth.sum() > 300
+            wrong = np.roll(tri, 1)
+            for hint in (tri.copy(), wrong.copy(), np.full(len(P), -1)):
+                s = cut._end_slopes(P, hint, np.arange(len(P)), v)
+                np.testing.assert_allclose(s[smooth], 0.5 * (fd_r + fd_l)[smooth], atol=1e-4)
+                held = np.array([_tri_drop(x, y, R_BALL, R_BALL ** 2, cut._T, t) for (x, y, _), t in zip(P, hint)])
+                np.testing.assert_allclose(held, z, atol=1e-9)
 
     def test_contacts_of_short_inputs(self):
         m = syn.plane(size=20.0, spacing=5.0)

@@ -54,6 +54,7 @@ import numpy as np
 from numba import njit, prange
 
 from conformill.errors import MeshError, PlanningError
+from conformill.geometry.closest import closest_on_triangle
 
 __all__ = ["BallCutter"]
 
@@ -73,6 +74,8 @@ _BOUND_NZ = 1e-3
 _PRUNE_SLACK = 1e-9
 #: How far below the ideal centre height (mm) the drop search of ``cl_from_cc`` starts.
 _FLOOR_SLACK = 1e-6
+#: A contact hint holds its centre up when its drop height there is within this (mm).
+_SUPPORT_TOL = 1e-9
 #: Points handled by one thread task (consecutive points share the warm start).
 _CHUNK = 256
 #: Upper bound on grid cells (memory); the cell size grows when exceeded.
@@ -581,6 +584,31 @@ def _worst_points(P, seg, r, thresh, floor2, l_safe, max_depth, T, B, gx0, gy0, 
 
 
 @njit(cache=True, nogil=True, parallel=True)
+def _contact_slopes(X, tri, r, T, vx, vy, support):
+    """Slope ``dD/dt`` of the drop surface along ``(vx, vy)`` at centres ``X`` resting on
+    triangles ``tri``: ``D``'s unit normal there is ``(X - q) / r`` with ``q`` the contact
+    point (the triangle's point nearest to the centre). nan where the triangle is -1 or
+    ``D`` is vertical. With ``support``, a triangle whose drop height at ``X`` is not
+    ``X_z`` (within ``_SUPPORT_TOL``) is flagged ``stale`` (slope nan)."""
+    m = X.shape[0]
+    out = np.full(m, np.nan)
+    stale = np.zeros(m, dtype=np.bool_)
+    r2 = r * r
+    for i in prange(m):
+        t = tri[i]
+        px, py, pz = X[i, 0], X[i, 1], X[i, 2]
+        if t < 0 or (support and not abs(_tri_drop(px, py, r, r2, T, t) - pz) <= _SUPPORT_TOL):
+            stale[i] = True
+            continue
+        qx, qy, qz = closest_on_triangle(px, py, pz, T[t, _X0], T[t, _Y0], T[t, _Z0], T[t, _X1], T[t, _Y1],
+                                         T[t, _Z1], T[t, _X2], T[t, _Y2], T[t, _Z2])
+        nx, ny, nz = px - qx, py - qy, pz - qz
+        if nz > 1e-9 * math.sqrt(nx * nx + ny * ny + nz * nz):
+            out[i] = -(nx * vx[i] + ny * vy[i]) / nz
+    return out, stale
+
+
+@njit(cache=True, nogil=True, parallel=True)
 def _tables(V, F, r):
     """Per-triangle tables ``T (m, 13)`` (vertices, unit up normal, 1 / det_xy) and
     ``B (m, 11)`` (XY box, top z, plane-bound coefficients, centroid)."""
@@ -994,7 +1022,7 @@ class BallCutter:
                 P = self._split_safe(P, seg, thresh)
         return P
 
-    def settle(self, centers, tol: float, probes: int = 3, max_iter: int = 4, contacts=None) -> tuple:
+    def settle(self, centers, tol: float, steps: int = 3, max_iter: int = 4, contacts=None) -> tuple:
         """Insert drop-cutter points where a straight centre move floats above the drop surface.
 
         The other side of :meth:`refine`. Where the drop surface ``D`` has a valley along a
@@ -1004,19 +1032,23 @@ class BallCutter:
         material at the groove's rims, where only the wedged ball reaches.
 
         Each move is tested at its midpoint: a compiled test that stops at the first
-        triangle lifting the ball there to within ``tol / 2`` of the chord. A move whose
-        midpoint floats more is probed at ``probes`` evenly spaced points. With at least
-        three probes, the lines through two samples (ends or probes) on each side of the
-        highest float are met, as at a crease with straight sides, and one more drop is
-        made there, kept where it floats more. The highest-floating point is lowered onto
-        ``D`` and inserted, and the two new moves are tested again, for at most
-        ``max_iter`` rounds. A crease with straight sides between the first and the last
-        probe is found exactly in one round, one nearer an end in two.
+        triangle lifting the ball there to within ``tol / 2`` of the chord. On a move whose
+        midpoint floats more, the highest float is searched by tangent steps. The slope of
+        ``D`` at a centre follows from its contact: ``D``'s normal there is the unit vector
+        from the contact point to the centre. The tangent lines of ``D`` at the two ends
+        of the move meet where a crease with straight sides lies; one drop is made there.
+        Where it lands on the lines, the crease is found. Otherwise the point replaces the
+        end of the bracket on its side (the side where ``D`` rises faster than the chord
+        lies beyond the highest float), for at most ``steps`` drops. A crease between plane
+        sides (a V-groove) is thus found exactly in one drop, wherever it lies on the move.
+        The highest-floating point found is lowered onto ``D`` and inserted (the midpoint,
+        dropped, where the steps found nothing floating more than ``tol / 2``), and the two
+        new moves are tested again, for at most ``max_iter`` rounds.
 
-        For such a crease the float at the midpoint is at least half the largest float,
-        so every move that floats more than ``tol`` there is caught; a narrower dip between
-        the probes can be missed, and a curved valley may need more rounds than
-        ``max_iter`` (those moves are counted, not resolved).
+        For a crease with straight sides the float at the midpoint is at least half the
+        largest float, so every move that floats more than ``tol`` there is caught; a
+        narrower dip between the ends can be missed, and a curved valley may need more
+        rounds than ``max_iter`` (those moves are counted, not resolved).
 
         Parameters
         ----------
@@ -1024,14 +1056,15 @@ class BallCutter:
             Ball centres of one continuous pass, on or above the drop surface.
         tol : float
             Allowed float of a move above ``D``, mm.
-        probes : int
-            Points probed on a move that floats (the crease step needs three or more).
+        steps : int
+            Drops of the tangent search per floating move and round.
         max_iter : int
             Rounds of insertion.
         contacts : (k,) int, optional
             The triangle each centre rests on, as :meth:`cl_from_cc` returns it (-1:
-            unknown). Hints only: tried first in the tests and drops near the centres,
-            they change the speed, not the result.
+            unknown). Checked before use (a triangle that does not hold the centre up is
+            replaced by the one found by a drop), so they save drops; the result
+            depends on them only where several triangles hold a centre up at once.
 
         Returns
         -------
@@ -1046,28 +1079,28 @@ class BallCutter:
             before ``max_iter``).
         contacts : (k',) int64
             Only when ``contacts`` is given: hints for the output points, to pass on to
-            the next call (the input hints, as given, and the exact contact of every
-            inserted point).
+            the next call (the input hints, those found wrong at the ends of a floating
+            move replaced by the exact contact, and the exact contact of every inserted
+            point).
 
         Raises
         ------
         PlanningError
-            Bad shapes, non-finite values, ``tol`` not positive, ``probes < 1``,
+            Bad shapes, non-finite values, ``tol`` not positive, ``steps < 1``,
             ``contacts`` not one integer per centre.
         """
         P = _as_points(centers, 3, "centers")
         tol = float(tol)
         if not (math.isfinite(tol) and tol > 0):
             raise PlanningError(f"cutter: settle tolerance must be positive, got {tol}")
-        probes = int(probes)
-        if probes < 1:
-            raise PlanningError(f"cutter: settle needs at least one probe, got {probes}")
+        steps = int(steps)
+        if steps < 1:
+            raise PlanningError(f"cutter: settle needs at least one step, got {steps}")
         want = contacts is not None
         tri = self._hints(contacts, len(P))
         if len(P) < 2:
             return (P.copy(), 0, 0, tri) if want else (P.copy(), 0, 0)
         half = 0.5 * tol
-        t = np.arange(1, probes + 1) / (probes + 1)
         d = np.diff(P, axis=0)
         check = np.hypot(d[:, 0], d[:, 1]) > 1e-9
         inserted = 0
@@ -1079,56 +1112,27 @@ class BallCutter:
             seg = seg[~self._reaches(mid[:, :2], mid[:, 2] - half, tri[seg], tri[seg + 1])]
             if seg.size == 0:
                 break
-            a, v = P[seg], P[seg + 1] - P[seg]
-            Q = a[:, None, :] + t[None, :, None] * v[:, None, :]
-            # hints: the first probe starts from the move's start contact, the last from
-            # its end contact, the others from the last contact found (speed only)
-            W = np.full((len(seg), probes), -1, dtype=np.int64)
-            W[:, -1] = tri[seg + 1]
-            W[:, 0] = tri[seg]
-            D, DT = self._drop(Q[:, :, :2].reshape(-1, 2), np.full(Q.shape[0] * probes, -np.inf), W.ravel())
-            D = D.reshape(len(seg), probes)
-            DT = DT.reshape(len(seg), probes)
-            lift = Q[:, :, 2] - D
-            lift[~np.isfinite(lift)] = -np.inf
-            rows = np.arange(len(seg))
-            j = np.argmax(lift, axis=1)
-            tj = t[j]
-            # a crease: the drop surface is straight on each side of it, so a line through
-            # two samples (ends or probes) before the highest float and one through two
-            # after it meet on it; one more drop there, kept where it floats more. With
-            # the highest float at the first (last) probe, that probe itself is the second
-            # point of the left (the first of the right) line.
-            if probes >= 3:
-                tt = np.concatenate([[0.0], t, [1.0]])
-                G = np.column_stack([P[seg, 2], D, P[seg + 1, 2]])  # drop heights at tt
-                m = j + 1  # the highest float's column of tt
-                lo = np.where(m >= 2, m - 2, m - 1)
-                hi = np.where(m + 2 <= probes + 1, m + 1, m)
-                t0, t1, t2, t3 = tt[lo], tt[lo + 1], tt[hi], tt[hi + 1]
-                g0, g1, g2, g3 = G[rows, lo], G[rows, lo + 1], G[rows, hi], G[rows, hi + 1]
-                with np.errstate(invalid="ignore", divide="ignore"):
-                    s1 = (g1 - g0) / (t1 - t0)
-                    s2 = (g3 - g2) / (t3 - t2)
-                    tv = (g2 - g1 + s1 * t1 - s2 * t2) / (s1 - s2)
-                vt = np.isfinite(tv) & (tv > t1) & (tv < t2) & (s2 > s1)
-                if vt.any():
-                    qv = a[vt] + tv[vt, None] * v[vt]
-                    dv, dt = self._drop(qv[:, :2], np.full(len(qv), -np.inf), DT[rows[vt], j[vt]])
-                    lv = qv[:, 2] - dv
-                    better = np.isfinite(lv) & (lv > lift[rows[vt], j[vt]])
-                    idx = rows[vt][better]
-                    tj[idx] = tv[vt][better]
-                    D[idx, j[idx]] = dv[better]
-                    DT[idx, j[idx]] = dt[better]
-                    lift[idx, j[idx]] = lv[better]
-            new = a + tj[:, None] * v
-            new[:, 2] = D[rows, j]
-            keep = lift[rows, j] > half
+            v = P[seg + 1] - P[seg]
+            s0 = self._end_slopes(P, tri, seg, v)
+            s1 = self._end_slopes(P, tri, seg + 1, v)
+            t, z, zt, lift = self._highest_float(P[seg], v, s0, s1, tri[seg], tri[seg + 1], steps, 0.01 * tol)
+            # the midpoint is known to float more than tol / 2: dropped where the steps
+            # found nothing higher
+            low = np.flatnonzero(~(lift > half))
+            if low.size:
+                q = P[seg[low]] + 0.5 * v[low]
+                zm, tm = self._drop(q[:, :2], np.full(low.size, -np.inf), tri[seg[low]])
+                lm = q[:, 2] - zm
+                up = np.isfinite(lm) & (lm > lift[low])
+                i = low[up]
+                t[i], z[i], zt[i], lift[i] = 0.5, zm[up], tm[up], lm[up]
+            keep = lift > half
             if not keep.any():
                 break
+            new = P[seg] + t[:, None] * v
+            new[:, 2] = z
             P, check = _insert(P, seg[keep], new[keep])
-            tri = np.insert(tri, seg[keep] + 1, DT[rows, j][keep])
+            tri = np.insert(tri, seg[keep] + 1, zt[keep])
             d = np.diff(P, axis=0)
             check &= np.hypot(d[:, 0], d[:, 1]) > 1e-9
             inserted += int(keep.sum())
@@ -1136,6 +1140,67 @@ class BallCutter:
             left = int(check.sum())
             return (P, inserted, left, tri) if want else (P, inserted, left)
         return (P, inserted, 0, tri) if want else (P, inserted, 0)
+
+    def _end_slopes(self, P, tri, ends, v):
+        """Slope of ``D`` (per unit of the move parameter) along moves ``v`` at the centres
+        ``P[ends]``, from their contacts ``tri[ends]``; a contact that does not hold its
+        centre up is replaced in ``tri`` (in place) by the one a drop finds. nan where no
+        triangle holds the centre up (it floats above ``D``) or ``D`` is vertical."""
+        X = np.ascontiguousarray(P[ends])
+        vx, vy = np.ascontiguousarray(v[:, 0]), np.ascontiguousarray(v[:, 1])
+        c = tri[ends]
+        s, stale = _contact_slopes(X, c, self.radius, self._T, vx, vy, True)
+        st = np.flatnonzero(stale)
+        if st.size:
+            _, ct = self._drop(X[st, :2], X[st, 2] - _FLOOR_SLACK)
+            c[st] = ct
+            tri[ends[st]] = np.where(ct >= 0, ct, tri[ends[st]])
+            s[st] = _contact_slopes(X[st], ct, self.radius, self._T, vx[st], vy[st], False)[0]
+        return s
+
+    def _highest_float(self, a, v, s0, s1, c0, c1, steps, eps):
+        """Tangent search for the highest float of the chords ``a + t v`` above ``D``.
+
+        ``s0``, ``s1``: slopes of ``D`` at the ends, ``c0``, ``c1``: their contacts. The
+        bracket ``[t_l, t_r]`` starts as the move; each step drops at the meeting point of
+        the tangent lines at the bracket's ends (its middle where they do not meet inside
+        it), which then replaces the end on its side. Returns ``(t, drop height, contact,
+        float)`` of the highest-floating point dropped (float ``-inf`` where every drop
+        found nothing below the ball)."""
+        n = len(a)
+        cs = v[:, 2]  # the chord's slope
+        tl, zl, sl, kl = np.zeros(n), a[:, 2].copy(), s0.copy(), c0.copy()
+        tr, zr, sr, kr = np.ones(n), a[:, 2] + v[:, 2], s1.copy(), c1.copy()
+        bt, bz, bk, bl = np.full(n, 0.5), np.full(n, np.nan), np.full(n, -1, dtype=np.int64), np.full(n, -np.inf)
+        act = np.arange(n)
+        for _ in range(steps):
+            if act.size == 0:
+                break
+            i = act
+            with np.errstate(invalid="ignore", divide="ignore"):
+                t = (zr[i] - sr[i] * tr[i] - zl[i] + sl[i] * tl[i]) / (sl[i] - sr[i])
+            w = tr[i] - tl[i]
+            meet = np.isfinite(t) & (sr[i] > sl[i]) & (t > tl[i] + 0.01 * w) & (t < tr[i] - 0.01 * w)
+            t = np.where(meet, t, tl[i] + 0.5 * w)
+            on_lines = zl[i] + sl[i] * (t - tl[i])
+            q = a[i] + t[:, None] * v[i]
+            z, k = self._drop(q[:, :2], np.full(i.size, -np.inf), np.where(t - tl[i] < tr[i] - t, kl[i], kr[i]))
+            lift = q[:, 2] - z
+            lift[~np.isfinite(lift)] = -np.inf
+            up = lift > bl[i]
+            j = i[up]
+            bt[j], bz[j], bk[j], bl[j] = t[up], z[up], k[up], lift[up]
+            c = q.copy()
+            c[:, 2] = z  # the centre on D there
+            s, _ = _contact_slopes(c, k, self.radius, self._T, np.ascontiguousarray(v[i, 0]),
+                                   np.ascontiguousarray(v[i, 1]), False)
+            right = s >= cs[i]  # D rises faster than the chord: the top of the float lies left
+            j, m = i[right], ~right
+            tr[j], zr[j], sr[j], kr[j] = t[right], z[right], s[right], k[right]
+            j = i[m]
+            tl[j], zl[j], sl[j], kl[j] = t[m], z[m], s[m], k[m]
+            act = i[np.isfinite(s) & ~(meet & (np.abs(z - on_lines) <= eps))]
+        return bt, bz, bk, bl
 
     def _hints(self, contacts, k):
         """Contact-triangle hints as a new int64 ``(k,)`` array (-1 for none), checked:

@@ -48,6 +48,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from conformill.errors import ConformillError, GCodeError
+from conformill.geometry.closest import closest_on_triangle
 from conformill.verify.gcode import FEED, RAPID, Program
 from conformill.verify.samples import SurfaceSamples, sample_surface
 
@@ -448,45 +449,8 @@ def remaining_material(samples: SurfaceSamples, program: Program, tool_radius: f
 
 @nb.njit(cache=True, inline="always")
 def _closest_pt_tri_d2(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz):
-    """Squared distance from a point to a triangle (Ericson, Real-Time Collision Detection 5.1.5)."""
-    abx, aby, abz = bx - ax, by - ay, bz - az
-    acx, acy, acz = cx - ax, cy - ay, cz - az
-    apx, apy, apz = px - ax, py - ay, pz - az
-    d1 = abx * apx + aby * apy + abz * apz
-    d2 = acx * apx + acy * apy + acz * apz
-    if d1 <= 0.0 and d2 <= 0.0:
-        qx, qy, qz = ax, ay, az
-    else:
-        bpx, bpy, bpz = px - bx, py - by, pz - bz
-        d3 = abx * bpx + aby * bpy + abz * bpz
-        d4 = acx * bpx + acy * bpy + acz * bpz
-        vc = d1 * d4 - d3 * d2
-        if d3 >= 0.0 and d4 <= d3:
-            qx, qy, qz = bx, by, bz
-        elif vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
-            v = d1 / (d1 - d3)
-            qx, qy, qz = ax + v * abx, ay + v * aby, az + v * abz
-        else:
-            cpx, cpy, cpz = px - cx, py - cy, pz - cz
-            d5 = abx * cpx + aby * cpy + abz * cpz
-            d6 = acx * cpx + acy * cpy + acz * cpz
-            vb = d5 * d2 - d1 * d6
-            va = d3 * d6 - d5 * d4
-            if d6 >= 0.0 and d5 <= d6:
-                qx, qy, qz = cx, cy, cz
-            elif vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
-                w = d2 / (d2 - d6)
-                qx, qy, qz = ax + w * acx, ay + w * acy, az + w * acz
-            elif va <= 0.0 and (d4 - d3) >= 0.0 and (d5 - d6) >= 0.0:
-                w = (d4 - d3) / ((d4 - d3) + (d5 - d6))
-                qx, qy, qz = bx + w * (cx - bx), by + w * (cy - by), bz + w * (cz - bz)
-            else:
-                den = 1.0 / (va + vb + vc)
-                v = vb * den
-                w = vc * den
-                qx = ax + abx * v + acx * w
-                qy = ay + aby * v + acy * w
-                qz = az + abz * v + acz * w
+    """Squared distance from a point to a triangle."""
+    qx, qy, qz = closest_on_triangle(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz)
     dx, dy, dz = px - qx, py - qy, pz - qz
     return dx * dx + dy * dy + dz * dz
 

@@ -1,0 +1,49 @@
+"""Closest point of a triangle to a point (compiled, for the cutter and the verifier)."""
+
+from __future__ import annotations
+
+from numba import njit
+
+__all__ = ["closest_on_triangle"]
+
+
+@njit(cache=True, nogil=True, inline="always")
+def closest_on_triangle(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz):
+    """Point of triangle ``abc`` nearest to ``p``, as ``(qx, qy, qz)``.
+
+    By the Voronoi regions of the vertices, edges and face (Ericson, *Real-Time Collision
+    Detection*, 5.1.5).
+    """
+    abx, aby, abz = bx - ax, by - ay, bz - az
+    acx, acy, acz = cx - ax, cy - ay, cz - az
+    apx, apy, apz = px - ax, py - ay, pz - az
+    d1 = abx * apx + aby * apy + abz * apz
+    d2 = acx * apx + acy * apy + acz * apz
+    if d1 <= 0.0 and d2 <= 0.0:
+        return ax, ay, az
+    bpx, bpy, bpz = px - bx, py - by, pz - bz
+    d3 = abx * bpx + aby * bpy + abz * bpz
+    d4 = acx * bpx + acy * bpy + acz * bpz
+    vc = d1 * d4 - d3 * d2
+    if d3 >= 0.0 and d4 <= d3:
+        return bx, by, bz
+    if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
+        v = d1 / (d1 - d3)
+        return ax + v * abx, ay + v * aby, az + v * abz
+    cpx, cpy, cpz = px - cx, py - cy, pz - cz
+    d5 = abx * cpx + aby * cpy + abz * cpz
+    d6 = acx * cpx + acy * cpy + acz * cpz
+    vb = d5 * d2 - d1 * d6
+    va = d3 * d6 - d5 * d4
+    if d6 >= 0.0 and d5 <= d6:
+        return cx, cy, cz
+    if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
+        w = d2 / (d2 - d6)
+        return ax + w * acx, ay + w * acy, az + w * acz
+    if va <= 0.0 and (d4 - d3) >= 0.0 and (d5 - d6) >= 0.0:
+        w = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+        return bx + w * (cx - bx), by + w * (cy - by), bz + w * (cz - bz)
+    den = 1.0 / (va + vb + vc)
+    v = vb * den
+    w = vc * den
+    return ax + abx * v + acx * w, ay + aby * v + acy * w, az + abz * v + acz * w

@@ -583,29 +583,91 @@ def _worst_points(P, seg, r, thresh, floor2, l_safe, max_depth, T, B, gx0, gy0, 
     return wt, wd, wz
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _contact_slope(px, py, pz, t, T, vx, vy):
+    """Slope ``dD/dt`` of the drop surface along ``(vx, vy)`` at the centre ``p`` resting
+    on triangle ``t``: ``D``'s unit normal there is ``(p - q) / r`` with ``q`` the contact
+    point (the triangle's point nearest to the centre). nan for ``t = -1`` or a vertical
+    ``D``."""
+    if t < 0:
+        return np.nan
+    qx, qy, qz = closest_on_triangle(px, py, pz, T[t, _X0], T[t, _Y0], T[t, _Z0], T[t, _X1], T[t, _Y1],
+                                     T[t, _Z1], T[t, _X2], T[t, _Y2], T[t, _Z2])
+    nx, ny, nz = px - qx, py - qy, pz - qz
+    if nz > 1e-9 * math.sqrt(nx * nx + ny * ny + nz * nz):
+        return -(nx * vx + ny * vy) / nz
+    return np.nan
+
+
+@njit(cache=True, nogil=True)
+def _holding(px, py, pz, t, r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, CP, cid, cbound):
+    """The triangle holding the centre ``p`` up: ``t`` if its drop height there is ``p_z``
+    (within ``_SUPPORT_TOL``), else the one a drop finds at or above ``p_z -
+    _FLOOR_SLACK`` (-1: none, the centre floats above ``D``)."""
+    if t >= 0 and abs(_tri_drop(px, py, r, r2, T, t) - pz) <= _SUPPORT_TOL:
+        return t
+    return _drop_point(px, py, r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, CP,
+                       -1, cid, cbound, pz - _FLOOR_SLACK)[1]
+
+
 @njit(cache=True, nogil=True, parallel=True)
-def _contact_slopes(X, tri, r, T, vx, vy, support):
-    """Slope ``dD/dt`` of the drop surface along ``(vx, vy)`` at centres ``X`` resting on
-    triangles ``tri``: ``D``'s unit normal there is ``(X - q) / r`` with ``q`` the contact
-    point (the triangle's point nearest to the centre). nan where the triangle is -1 or
-    ``D`` is vertical. With ``support``, a triangle whose drop height at ``X`` is not
-    ``X_z`` (within ``_SUPPORT_TOL``) is flagged ``stale`` (slope nan)."""
-    m = X.shape[0]
-    out = np.full(m, np.nan)
-    stale = np.zeros(m, dtype=np.bool_)
+def _highest_floats(P, seg, tri, steps, eps, r, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, CP,
+                    maxwin):
+    """Per floating move ``P[seg[i]] -> P[seg[i] + 1]``: the highest float above ``D``
+    found by at most ``steps`` tangent steps (see ``BallCutter.settle``; ``eps``: how close
+    to the tangent lines a drop must land to end the search), as ``(t, drop height,
+    contact, float)`` (float ``-inf`` where no drop found anything below the ball), and
+    the triangles holding the two ends up (-1: none; a hint in ``tri`` is kept where it
+    holds its centre up)."""
+    m = seg.shape[0]
+    bt = np.full(m, 0.5)
+    bz = np.full(m, np.nan)
+    bk = np.full(m, -1, dtype=np.int64)
+    bl = np.full(m, -np.inf)
+    c0 = np.empty(m, dtype=np.int64)
+    c1 = np.empty(m, dtype=np.int64)
     r2 = r * r
-    for i in prange(m):
-        t = tri[i]
-        px, py, pz = X[i, 0], X[i, 1], X[i, 2]
-        if t < 0 or (support and not abs(_tri_drop(px, py, r, r2, T, t) - pz) <= _SUPPORT_TOL):
-            stale[i] = True
-            continue
-        qx, qy, qz = closest_on_triangle(px, py, pz, T[t, _X0], T[t, _Y0], T[t, _Z0], T[t, _X1], T[t, _Y1],
-                                         T[t, _Z1], T[t, _X2], T[t, _Y2], T[t, _Z2])
-        nx, ny, nz = px - qx, py - qy, pz - qz
-        if nz > 1e-9 * math.sqrt(nx * nx + ny * ny + nz * nz):
-            out[i] = -(nx * vx[i] + ny * vy[i]) / nz
-    return out, stale
+    nchunks = (m + _CHUNK - 1) // _CHUNK
+    for ch in prange(nchunks):
+        cid = np.empty(maxwin, dtype=np.int64)
+        cbound = np.empty(maxwin, dtype=np.float64)
+        for i in range(ch * _CHUNK, min(m, (ch + 1) * _CHUNK)):
+            s = seg[i]
+            ax, ay, az = P[s, 0], P[s, 1], P[s, 2]
+            vx, vy, vz = P[s + 1, 0] - ax, P[s + 1, 1] - ay, P[s + 1, 2] - az
+            kl = _holding(ax, ay, az, tri[s], r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB,
+                          CP, cid, cbound)
+            kr = _holding(P[s + 1, 0], P[s + 1, 1], P[s + 1, 2], tri[s + 1], r, r2, T, B, gx0, gy0, cell, ncx,
+                          ncy, cstart, ctri, czmax, EB, CP, cid, cbound)
+            c0[i] = kl
+            c1[i] = kr
+            tl, zl, sl = 0.0, az, _contact_slope(ax, ay, az, kl, T, vx, vy)
+            tr, zr, sr = 1.0, az + vz, _contact_slope(P[s + 1, 0], P[s + 1, 1], P[s + 1, 2], kr, T, vx, vy)
+            for _ in range(steps):
+                w = tr - tl
+                tm = tl + 0.5 * w
+                meet = False
+                if sr > sl:  # the tangent lines meet inside the bracket
+                    tv = (zr - sr * tr - zl + sl * tl) / (sl - sr)
+                    if tv > tl + 0.01 * w and tv < tr - 0.01 * w:
+                        tm = tv
+                        meet = True
+                h, k = _drop_point(ax + tm * vx, ay + tm * vy, r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart,
+                                   ctri, czmax, EB, CP, kl if tm - tl < tr - tm else kr, cid, cbound, -np.inf)
+                lift = az + tm * vz - h
+                if not math.isfinite(lift):
+                    lift = -np.inf
+                if lift > bl[i]:
+                    bt[i], bz[i], bk[i], bl[i] = tm, h, k, lift
+                on_lines = meet and abs(h - (zl + sl * (tm - tl))) <= eps
+                sm = _contact_slope(ax + tm * vx, ay + tm * vy, h, k, T, vx, vy)
+                if sm >= vz:  # D rises faster than the chord: the top of the float lies left
+                    tr, zr, sr, kr = tm, h, sm, k
+                else:
+                    tl, zl, sl, kl = tm, h, sm, k
+                if on_lines or not math.isfinite(sm):
+                    break
+    return bt, bz, bk, bl, c0, c1
 
 
 @njit(cache=True, nogil=True, parallel=True)
@@ -1112,10 +1174,13 @@ class BallCutter:
             seg = seg[~self._reaches(mid[:, :2], mid[:, 2] - half, tri[seg], tri[seg + 1])]
             if seg.size == 0:
                 break
+            gx0, gy0, cell, ncx, ncy = self._grid
+            t, z, zt, lift, c0, c1 = _highest_floats(P, seg, tri, steps, 0.01 * tol, self.radius, self._T, self._B,
+                                                     gx0, gy0, cell, ncx, ncy, self._cstart, self._ctri,
+                                                     self._czmax, self._EB, self._CP, self._maxwin)
+            tri[seg] = np.where(c0 >= 0, c0, tri[seg])  # hints found wrong, replaced
+            tri[seg + 1] = np.where(c1 >= 0, c1, tri[seg + 1])
             v = P[seg + 1] - P[seg]
-            s0 = self._end_slopes(P, tri, seg, v)
-            s1 = self._end_slopes(P, tri, seg + 1, v)
-            t, z, zt, lift = self._highest_float(P[seg], v, s0, s1, tri[seg], tri[seg + 1], steps, 0.01 * tol)
             # the midpoint is known to float more than tol / 2: dropped where the steps
             # found nothing higher
             low = np.flatnonzero(~(lift > half))
@@ -1140,67 +1205,6 @@ class BallCutter:
             left = int(check.sum())
             return (P, inserted, left, tri) if want else (P, inserted, left)
         return (P, inserted, 0, tri) if want else (P, inserted, 0)
-
-    def _end_slopes(self, P, tri, ends, v):
-        """Slope of ``D`` (per unit of the move parameter) along moves ``v`` at the centres
-        ``P[ends]``, from their contacts ``tri[ends]``; a contact that does not hold its
-        centre up is replaced in ``tri`` (in place) by the one a drop finds. nan where no
-        triangle holds the centre up (it floats above ``D``) or ``D`` is vertical."""
-        X = np.ascontiguousarray(P[ends])
-        vx, vy = np.ascontiguousarray(v[:, 0]), np.ascontiguousarray(v[:, 1])
-        c = tri[ends]
-        s, stale = _contact_slopes(X, c, self.radius, self._T, vx, vy, True)
-        st = np.flatnonzero(stale)
-        if st.size:
-            _, ct = self._drop(X[st, :2], X[st, 2] - _FLOOR_SLACK)
-            c[st] = ct
-            tri[ends[st]] = np.where(ct >= 0, ct, tri[ends[st]])
-            s[st] = _contact_slopes(X[st], ct, self.radius, self._T, vx[st], vy[st], False)[0]
-        return s
-
-    def _highest_float(self, a, v, s0, s1, c0, c1, steps, eps):
-        """Tangent search for the highest float of the chords ``a + t v`` above ``D``.
-
-        ``s0``, ``s1``: slopes of ``D`` at the ends, ``c0``, ``c1``: their contacts. The
-        bracket ``[t_l, t_r]`` starts as the move; each step drops at the meeting point of
-        the tangent lines at the bracket's ends (its middle where they do not meet inside
-        it), which then replaces the end on its side. Returns ``(t, drop height, contact,
-        float)`` of the highest-floating point dropped (float ``-inf`` where every drop
-        found nothing below the ball)."""
-        n = len(a)
-        cs = v[:, 2]  # the chord's slope
-        tl, zl, sl, kl = np.zeros(n), a[:, 2].copy(), s0.copy(), c0.copy()
-        tr, zr, sr, kr = np.ones(n), a[:, 2] + v[:, 2], s1.copy(), c1.copy()
-        bt, bz, bk, bl = np.full(n, 0.5), np.full(n, np.nan), np.full(n, -1, dtype=np.int64), np.full(n, -np.inf)
-        act = np.arange(n)
-        for _ in range(steps):
-            if act.size == 0:
-                break
-            i = act
-            with np.errstate(invalid="ignore", divide="ignore"):
-                t = (zr[i] - sr[i] * tr[i] - zl[i] + sl[i] * tl[i]) / (sl[i] - sr[i])
-            w = tr[i] - tl[i]
-            meet = np.isfinite(t) & (sr[i] > sl[i]) & (t > tl[i] + 0.01 * w) & (t < tr[i] - 0.01 * w)
-            t = np.where(meet, t, tl[i] + 0.5 * w)
-            on_lines = zl[i] + sl[i] * (t - tl[i])
-            q = a[i] + t[:, None] * v[i]
-            z, k = self._drop(q[:, :2], np.full(i.size, -np.inf), np.where(t - tl[i] < tr[i] - t, kl[i], kr[i]))
-            lift = q[:, 2] - z
-            lift[~np.isfinite(lift)] = -np.inf
-            up = lift > bl[i]
-            j = i[up]
-            bt[j], bz[j], bk[j], bl[j] = t[up], z[up], k[up], lift[up]
-            c = q.copy()
-            c[:, 2] = z  # the centre on D there
-            s, _ = _contact_slopes(c, k, self.radius, self._T, np.ascontiguousarray(v[i, 0]),
-                                   np.ascontiguousarray(v[i, 1]), False)
-            right = s >= cs[i]  # D rises faster than the chord: the top of the float lies left
-            j, m = i[right], ~right
-            tr[j], zr[j], sr[j], kr[j] = t[right], z[right], s[right], k[right]
-            j = i[m]
-            tl[j], zl[j], sl[j], kl[j] = t[m], z[m], s[m], k[m]
-            act = i[np.isfinite(s) & ~(meet & (np.abs(z - on_lines) <= eps))]
-        return bt, bz, bk, bl
 
     def _hints(self, contacts, k):
         """Contact-triangle hints as a new int64 ``(k,)`` array (-1 for none), checked:

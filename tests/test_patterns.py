@@ -143,3 +143,38 @@ def test_exact_distance_by_scan_equals_the_kdtree_reference():
         d2 = ((P[:, None, :] - Q[None, :, :]) ** 2).sum(-1)
         np.testing.assert_allclose(d2[np.arange(k), j], d2.min(axis=1), rtol=1e-12)
         assert np.array_equal(_around_vertex(P, Q, j, False), point_polyline_distance(P, Q, False))
+
+
+def test_exact_distance_on_a_closed_curve_measures_both_sides_of_the_seam():
+    """A closed curve's first and last samples are the same point up to rounding. Whichever
+    of the two the nearest-vertex search picks (scan or k-d tree), the segments on both
+    sides of the seam are measured: the distance is the brute-force minimum over all
+    segments, and the scan and the tree agree bit for bit."""
+    from conformill.patterns.family import _around_vertex, _nearest_vertex
+
+    def seg_dist(p, a, b):
+        ab = b - a
+        s = np.clip((p - a) @ ab / max(ab @ ab, 1e-300), 0.0, 1.0)
+        return np.linalg.norm(p - (a + s * ab))
+
+    rng = np.random.default_rng(5)
+    seen = 0
+    for _ in range(50):
+        q = int(rng.integers(4, 300))
+        t = np.sort(rng.random(q - 1)) * 2 * np.pi
+        t = np.concatenate([t, [t[0] + 2 * np.pi]])  # the seam: last = first up to rounding
+        Q = np.column_stack([30 * np.cos(t), 30 * np.sin(t), 2 * np.sin(3 * t)])
+        ang = t[0] + rng.normal(scale=0.05, size=20)  # points near the seam, on both sides
+        rad = 30 + rng.normal(size=20)
+        P = np.column_stack([rad * np.cos(ang), rad * np.sin(ang), rng.normal(size=20)])
+        want = np.array([min(seg_dist(p, Q[m], Q[m + 1]) for m in range(q - 1)) for p in P])
+        j = _nearest_vertex(P, Q)
+        by_scan = _around_vertex(P, Q, j, True)
+        np.testing.assert_allclose(by_scan, want, rtol=0, atol=1e-12)
+        assert np.array_equal(by_scan, point_polyline_distance(P, Q, True))
+        at_seam = (j == 0) | (j == q - 1)
+        seen += int(at_seam.sum())
+        for seam in (0, q - 1):  # either copy of the seam point as the nearest vertex
+            got = _around_vertex(P[at_seam], Q, np.full(int(at_seam.sum()), seam), True)
+            np.testing.assert_allclose(got, want[at_seam], rtol=0, atol=1e-12)
+    assert seen > 200

@@ -147,7 +147,20 @@ def point_polyline_distance(P: np.ndarray, Q: np.ndarray, closed: bool = False, 
 
 def _around_vertex(P, Q, j, closed):
     """Distance from each point of ``P`` to the two segments of ``Q`` at its vertex ``j``
-    (the vertex itself included)."""
+    (the vertex itself included). On a closed curve the first and the last sample are
+    the same point (up to rounding): at either, the segments on both sides of that
+    point are measured."""
+    best = _two_segments(P, Q, j, closed)
+    q = len(Q)
+    if closed and q > 2:
+        seam = np.flatnonzero((j == 0) | (j == q - 1))
+        if seam.size:
+            other = np.where(j[seam] == 0, q - 1, 0)
+            best[seam] = np.minimum(best[seam], _two_segments(P[seam], Q, other, closed))
+    return best
+
+
+def _two_segments(P, Q, j, closed):
     if len(Q) == 1:
         return np.linalg.norm(P - Q[0], axis=1)
     best = np.linalg.norm(P - Q[j], axis=1)
@@ -203,7 +216,7 @@ def _nearest_vertex(P, Q):
     return out
 
 
-#: Below this many point-vertex pairs the exact distance scans an open curve instead of
+#: Below this many point-vertex pairs the exact distance scans the curve instead of
 #: building a k-d tree of it (about 2 ms of scanning).
 _SCAN_PAIRS = 2_000_000
 
@@ -219,9 +232,7 @@ def _exact_where_over(d: np.ndarray, limit: np.ndarray, P: np.ndarray, b, closed
     d = d.copy()
     Q = b.sample.xyz
     Po = P[over]
-    # (not on closed curves: their first and last samples are the same point up to
-    # rounding, and the scan and the tree may then pick different ones of the two)
-    if b.tree is None and not closed and over.size * len(Q) <= _SCAN_PAIRS:
+    if b.tree is None and over.size * len(Q) <= _SCAN_PAIRS:
         j = _nearest_vertex(np.ascontiguousarray(Po, dtype=np.float64), np.ascontiguousarray(Q, dtype=np.float64))
     else:
         if b.tree is None:

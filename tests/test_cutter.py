@@ -375,6 +375,37 @@ class TestClFromCC:
         _, lift_down = cut.cl_from_cc(cc[:1], -np.array([[0.0, 0.0, 1.0]]))
         assert lift_down[0] > 5.0
 
+    def test_horizontal_normal_at_the_rim_of_reach(self):
+        # A CC point at a convex corner of the outline with a horizontal outward normal puts
+        # the ideal centre exactly r from the corner in XY, the only point it can touch;
+        # rounding made some of these touch nothing and aborted the plan (seen on a 2.5M-face
+        # scan). Now the centre is pulled towards cc by a relative 1e-6 and dropped there.
+        a, b, z0 = 10.3, 7.1, 2.5
+        V = np.array([[-a, -b, z0], [a, -b, z0], [a, b, z0], [-a, b, z0]])
+        F = np.array([[0, 1, 2], [0, 2, 3]])
+        cut = BallCutter(V, F, R_BALL)
+        th = np.random.default_rng(5).uniform(0.0, 0.5 * np.pi, 400)
+        n = np.column_stack([np.cos(th), np.sin(th), np.zeros_like(th)])
+        cc = np.tile(V[2], (len(th), 1))
+        ideal = cc + R_BALL * (n / np.linalg.norm(n, axis=1)[:, None])  # as cl_from_cc forms it
+        missed = np.array([not np.isfinite(cut.drop(p[None, :2])[0]) for p in ideal])
+        assert missed.any()  # the case exists: without the pull these points raised
+        centre, lift = cut.cl_from_cc(cc, n)
+        assert np.isfinite(centre).all()
+        # each centre touches the square (its corner) and does not cut into it
+        dx = np.maximum(np.abs(centre[:, 0]) - a, 0.0)
+        dy = np.maximum(np.abs(centre[:, 1]) - b, 0.0)
+        dist = np.sqrt(dx * dx + dy * dy + (centre[:, 2] - z0) ** 2)
+        assert dist.min() >= R_BALL - 1e-9 and dist.max() <= R_BALL + 1e-9
+        # a centre keeps its ideal XY, or is pulled by 1e-6 and rests on the corner just
+        # below the ball's equator, lifted by about r sqrt(2e-6)
+        pulled = np.any(centre[:, :2] != ideal[:, :2], axis=1)
+        assert pulled.any()
+        d = np.linalg.norm(centre[pulled, :2] - cc[pulled, :2], axis=1)
+        np.testing.assert_allclose(d, R_BALL * (1 - 1e-6), rtol=1e-12)
+        np.testing.assert_allclose(lift[pulled], np.sqrt(R_BALL**2 - d**2), rtol=1e-6)
+        assert lift.min() >= 0.0 and lift.max() < 0.01
+
     def test_bad_inputs(self):
         m = syn.plane(size=20.0, spacing=5.0)
         cut = BallCutter(m.V, m.F, R_BALL)

@@ -42,7 +42,9 @@ and the tangent plane at its centroid of the concave function ``q_z + sqrt(r^2 -
 over the triangle. The previous point's contact triangle (points usually come in path order)
 gives the first height; without one, cells are visited by decreasing bound. All pruning
 uses a slack of 1e-9 mm, so the result is the exact maximum whatever the visiting order
-(bit-identical for shuffled queries or another cell size).
+(bit-identical for shuffled queries or another cell size), except for a ball whose only
+contact lies exactly r away in XY, at its equator: rounding in the cell and triangle tests
+may then find or miss that contact depending on the warm start.
 """
 
 from __future__ import annotations
@@ -74,6 +76,9 @@ _BOUND_NZ = 1e-3
 _PRUNE_SLACK = 1e-9
 #: How far below the ideal centre height (mm) the drop search of ``cl_from_cc`` starts.
 _FLOOR_SLACK = 1e-6
+#: Relative pull of a centre towards its CC point where the ideal centre, r away in XY
+#: (a horizontal normal), touches nothing through rounding (:meth:`BallCutter.cl_from_cc`).
+_RIM_PULL = 1e-6
 #: A contact hint holds its centre up when its drop height there is within this (mm).
 _SUPPORT_TOL = 1e-9
 #: Points handled by one thread task (consecutive points share the warm start).
@@ -982,6 +987,14 @@ class BallCutter:
         if miss.size:
             z[miss], tri[miss] = self._drop(ideal[miss, :2], np.full(miss.size, -np.inf))
         miss = np.flatnonzero(~np.isfinite(z))
+        if miss.size:
+            # A horizontal normal (an outward wall at the part's rim) puts the ideal centre
+            # exactly r from ``cc`` in XY, where rounding can leave the ball touching nothing.
+            # Its centre moves towards ``cc`` by a relative _RIM_PULL: ``cc`` is then within
+            # reach, and the centre is an exact drop at its own XY like every other.
+            ideal[miss, :2] = cc[miss, :2] + (1.0 - _RIM_PULL) * (ideal[miss, :2] - cc[miss, :2])
+            z[miss], tri[miss] = self._drop(ideal[miss, :2], np.full(miss.size, -np.inf))
+            miss = miss[~np.isfinite(z[miss])]
         if miss.size:
             i = miss[0]
             raise PlanningError(

@@ -105,3 +105,20 @@ def test_spacing_option_reaches_the_report(part, tmp_path, capsys):
     err = capsys.readouterr().err
     assert rc == 2 and "spacing" in err and "Traceback" not in err
     assert not bad.exists()
+
+
+def test_fit_option_reaches_the_report_and_the_header(part, tmp_path, capsys):
+    out, rep = tmp_path / "split.nc", tmp_path / "split.json"
+    assert main(["plan", str(part), "--pattern", "spiral", "--tool-radius", "4", "--scallop", "0.5",
+                 "--fit", "split", "-o", str(out), "--report", str(rep), "-q"]) == 0
+    assert json.loads(rep.read_text())["job"]["fit"] == "split"
+    assert "fit: split" in out.read_text()
+    capsys.readouterr()
+    bad = tmp_path / "bad.nc"
+    try:
+        rc = main(["plan", str(part), "--tool-radius", "4", "--scallop", "0.5", "--fit", "coarse", "-o", str(bad)])
+    except SystemExit as exc:  # argparse's own exit for an unknown choice
+        rc = exc.code
+    err = capsys.readouterr().err
+    assert rc == 2 and "fit" in err and "Traceback" not in err
+    assert not bad.exists()

@@ -31,14 +31,26 @@ def test_zigzag_on_plane_spaces_paths_at_exact_flat_interval(zigzag_square):
     assert len(zigzag_square.toolpath.passes) == 1  # rows linked on the surface
 
 
+def test_split_fit_on_plane_spaces_paths_at_exact_flat_interval(square):
+    # the split fit sees the same plane (zero curvature): the same flat interval, and the
+    # planner's finer mesh is the input surface, so every tip is on the plane
+    res = plan(square, Job(pattern="zigzag", tool_radius=R_TOOL, scallop=H, tolerance=0.01, fit="split"))
+    assert res.report["job"]["fit"] == "split"
+    d = [np.median(p.side_realised) for p in res.domain_paths.paths[:-2]]
+    np.testing.assert_allclose(d, FLAT, rtol=1e-6)
+    tips = np.concatenate(res.toolpath.passes)
+    np.testing.assert_allclose(tips[:, 2], 0.0, atol=1e-9)
+
+
 def test_plane_tool_tip_sits_on_plane(zigzag_square):
     tips = np.concatenate(zigzag_square.toolpath.passes)
     np.testing.assert_allclose(tips[:, 2], 0.0, atol=1e-9)
 
 
-def test_cc_points_lie_on_mesh_and_ball_centre_is_r_along_normal():
+@pytest.mark.parametrize("fit", ["mesh", "split"])
+def test_cc_points_lie_on_mesh_and_ball_centre_is_r_along_normal(fit):
     dome = synthetic.sphere_cap(R=50.0, radius_xy=25.0, spacing=1.5, jitter=0.2)
-    res = plan(dome, Job(pattern="contour", tool_radius=R_TOOL, scallop=0.2, tolerance=0.01))
+    res = plan(dome, Job(pattern="contour", tool_radius=R_TOOL, scallop=0.2, tolerance=0.01, fit=fit))
     cc = np.concatenate(res.cc_paths)
     # on the faceted sphere: vertices are on it, a face lies inside by at most
     # R - sqrt(R^2 - rho^2), rho the largest circumradius
@@ -83,6 +95,7 @@ def test_adjacent_paths_never_farther_than_allowed():
         (dict(feed=0.0), "feed"),
         (dict(settle=-0.1), "settle"),
         (dict(settle=float("nan")), "settle"),
+        (dict(fit="coarse"), "fit"),
     ],
 )
 def test_bad_job_values_are_refused(kw, word):

@@ -35,6 +35,11 @@ def add_arguments(p) -> None:
                    help="largest float of a move above the drop surface, as a fraction of the scallop: moves "
                         "that ride over a groove narrower than the ball get a point where the ball sits in it "
                         "(0.5; 0: off)")
+    p.add_argument("--fit", choices=["mesh", "split"], default="mesh",
+                   help="scale of the curvature fit the paths are spaced from: each vertex's 1-ring (mesh, "
+                        "default) or the 1-ring of the mesh split once at its edge midpoints (split: the same "
+                        "surface at half the edge length; on scans it sees facet creases and sharp rims, for a "
+                        "smaller scallop and a longer program)")
     p.add_argument("--max-step", type=float, default=10.0, metavar="L", help="longest forward step, mm (10)")
     p.add_argument("--threads", type=int, default=None, metavar="N",
                    help="threads for parallel stages (default all; with 1 the cutter runs after the pattern stage)")
@@ -78,7 +83,7 @@ def run(args) -> int:
     job = Job(pattern=args.pattern, tool_radius=args.tool_radius, scallop=args.scallop, tolerance=args.tolerance,
               feed=args.feed, plunge_feed=args.plunge_feed, safe_z=args.safe_z, orient=args.orient,
               weights=args.weights, corners=_corners(args.corners), max_step=args.max_step, spindle=args.spindle,
-              concave_steps=args.concave_steps, spacing=args.spacing, settle=args.settle)
+              concave_steps=args.concave_steps, spacing=args.spacing, settle=args.settle, fit=args.fit)
     from conformill.pipeline import check_job
 
     check_job(job)
@@ -100,7 +105,7 @@ def run(args) -> int:
         "scallop": job.scallop, "tolerance": job.tolerance, "feed": job.feed,
         "plunge_feed": job.plunge_feed or job.feed / 3, "safe_z": round(result.toolpath.safe_z, 4),
         "scale": args.scale, "orient": job.orient, "weights": job.weights, "concave steps": job.concave_steps,
-        "spacing": job.spacing, "settle": job.settle,
+        "spacing": job.spacing, "settle": job.settle, "fit": job.fit,
         "programmed point": "tool tip", "units": "mm",
     }
     with all_or_nothing(args.output, args.report, args.plot, args.html):

@@ -1,0 +1,149 @@
+"""What the scallop limit costs on a scan: plan variants against their verified scallop, one run.
+
+Issue 5 asks, on the 50k-150k-face meshes, for conformill at least 20x faster than
+OpenCAMLib's raster *and* a verified scallop within 1.05 h. On the igea scan the default
+plan is about 20x but leaves 1.26 h at p99.9 (README, "Against an OpenCAMLib raster"). This
+script measures, on one mesh and one pattern, how the verified scallop moves with the feed
+length and the time for the knobs that densify the program:
+
+* ``settle S``: ``Job.settle`` (the largest float of a move above the drop surface, x h);
+* ``planned F h``: the paths spaced for ``F h`` (``--scallop``), judged at h;
+* ``local``: ``--spacing local`` (sparser paths that dent locally);
+* ``fit split``: ``Job.fit = "split"`` (``--fit split``): only the planner's curvature fit
+  works on the split mesh below; the cutter stays on the input mesh;
+* ``fine``: the same job on the same surface split once more (every triangle into four at its
+  edge midpoints, :func:`trimesh.remesh.subdivide`; a planar split, so the surface and the
+  drop-cutter's heights are the same): the per-vertex quadratic fit then works at half the
+  edge length and sees a scan's facet creases sharper (both the planner and the cutter run
+  on the split mesh, so its time includes a cutter on four times the faces).
+
+Every program is written as G-code, read back and verified on the *original* mesh with the
+same 400k area-uniform samples (seed 0), limit 1.05 h and reach depth h, exactly as
+``bench_raster.py`` does; so the p99.9 columns of one run compare directly. Time: ``plan`` +
+``write_gcode`` in-process after a warm-up (wall and CPU); with ``--ocl`` OpenCAMLib's raster
+is run once in the same process and the ratio printed.
+
+    python benchmarks/bench_tradeoff.py [MESH] [--pattern contour] [--h 0.01] [--samples 400000]
+        [--variants default "settle 0.25" ...] [--ocl] [--keep DIR]
+
+``MESH`` is a short name of :data:`_common.MESH_FILES` (default ``igea``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _common  # noqa: E402
+import bench_raster as BR  # noqa: E402
+
+#: name -> (Job overrides, factor on the planned scallop, split the mesh once)
+VARIANTS = {
+    "default": ({}, 1.0, False),
+    "settle 0.25": ({"settle": 0.25}, 1.0, False),
+    "settle off": ({"settle": 0.0}, 1.0, False),
+    "local": ({"spacing": "local"}, 1.0, False),
+    "planned 0.7 h": ({}, 0.7, False),
+    "planned 0.5 h": ({}, 0.5, False),
+    "planned 0.4 h": ({}, 0.4, False),
+    "fine": ({}, 1.0, True),
+    "fine, settle 0.25": ({"settle": 0.25}, 1.0, True),
+    "fine, settle 0.25, planned 0.8 h": ({"settle": 0.25}, 0.8, True),
+    "fit split": ({"fit": "split"}, 1.0, False),
+    "fit split, settle 0.25": ({"fit": "split", "settle": 0.25}, 1.0, False),
+    "fit split, settle 0.25, planned 0.8 h": ({"fit": "split", "settle": 0.25}, 0.8, False),
+    "fit split, settle 0.25, planned 0.7 h": ({"fit": "split", "settle": 0.25}, 0.7, False),
+}
+
+
+def split_once(mesh):
+    """The same surface with every triangle split into four at its edge midpoints."""
+    import trimesh
+
+    from conformill.types import Mesh
+
+    V, F = trimesh.remesh.subdivide(mesh.V, mesh.F)
+    return Mesh(V=np.ascontiguousarray(V, dtype=np.float64), F=np.ascontiguousarray(F, dtype=np.int64),
+                name=mesh.name + "_split")
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("mesh", nargs="?", default="igea")
+    ap.add_argument("--pattern", default="contour", choices=BR.PATTERNS)
+    ap.add_argument("--h", type=float, default=0.01)
+    ap.add_argument("--r", type=float, default=4.0)
+    ap.add_argument("--e", type=float, default=0.01)
+    ap.add_argument("--samples", type=int, default=400_000)
+    ap.add_argument("--variants", nargs="*", default=list(VARIANTS), choices=list(VARIANTS))
+    ap.add_argument("--ocl", action="store_true", help="also time OpenCAMLib's raster once (minutes on igea)")
+    ap.add_argument("--keep", default=None, help="folder to keep the programs in")
+    args = ap.parse_args(argv)
+    import logging
+
+    logging.disable(logging.WARNING)
+    from conformill.output.gcode import write_gcode
+    from conformill.pipeline import Job, orient_mesh, plan
+    from conformill.verify.samples import sample_surface
+
+    h, r, e = args.h, args.r, args.e
+    mesh, info = _common.load_part(args.mesh)
+    mesh, _ = orient_mesh(mesh, "none")  # as plan() sees it: the verify mesh is the planned one
+    print(_common.machine())
+    print(f"{mesh.name}: {mesh.n_faces} faces; {args.pattern}, r = {r:g}, h = {h:g}, e = {e:g}; "
+          f"verify: {args.samples} samples, seed 0, limit 1.05 h, reach depth h", flush=True)
+    BR.warm_up()
+    ocl_s = None
+    if args.ocl:
+        k1, k2 = _common.principal_curvatures(mesh)
+        s, _ = BR.raster_sampling(mesh, k1, k2, r, e)
+        ras = BR.ocl_zigzag(mesh, r, h, s)
+        ocl_s = ras["wall_s"]
+        print(f"OpenCAMLib raster: {ocl_s:.1f} s wall, {ras['cl_points']} CL points", flush=True)
+    samples = sample_surface(mesh.V, mesh.F, args.samples, seed=0, boundary_spacing=min(0.1, r / 20),
+                             boundary_max=2 * r)
+    reach = _common.reachable_samples(mesh, samples, r, tol=h)
+    split = None
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(args.keep) if args.keep else Path(tmp)
+        folder.mkdir(parents=True, exist_ok=True)
+        for name in args.variants:
+            over, factor, fine = VARIANTS[name]
+            if fine and split is None:
+                split = split_once(mesh)
+            job = Job(pattern=args.pattern, tool_radius=r, scallop=factor * h, tolerance=e, **over)
+            path = folder / f"{mesh.name}_{args.pattern}_{name.replace(' ', '_').replace(',', '')}.nc"
+            t0, c0 = time.perf_counter(), time.process_time()
+            res = plan(split if fine else mesh, job)
+            write_gcode(path, res.toolpath, feed=1000.0, plunge_feed=1000.0 / 3)
+            wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+            m = BR.measure(mesh, path, r, h, e, samples, reach, res.toolpath.safe_z)
+            vr = m["verify_reach"]
+            row = {"variant": name, "wall": wall, "cpu": cpu, "cl": res.report["paths"]["cl_points"],
+                   "feed_m": m["feed_mm"] / 1000, "p999": vr["p999"] / h, "p99": vr["p99"] / h,
+                   "excused": vr["beyond_any_ball"], "gouge_um": 1000 * m["gouge_max"], "rs274": m["rs274"]}
+            rows.append(row)
+            print(f"  {name}: {wall:.2f} s wall, {cpu:.2f} s cpu, {row['cl']} CL points, {row['feed_m']:.1f} m; "
+                  f"reachable p99.9 {row['p999']:.3f} h, p99 {row['p99']:.3f} h", flush=True)
+    base = next((x for x in rows if x["variant"] == "default"), rows[0])
+    print()
+    print("| variant | plan + G-code s (cpu s) | " + ("OCL time / this | " if ocl_s else "")
+          + "CL points | feed m (x default) | reachable p99.9 / h | p99 / h | excused | gouge um | rs274 |")
+    print("|---|---|" + ("---|" if ocl_s else "") + "---|---|---|---|---|---|---|")
+    for x in rows:
+        ratio = f"{ocl_s / x['wall']:.1f} | " if ocl_s else ""
+        print(f"| {x['variant']} | {x['wall']:.2f} ({x['cpu']:.2f}) | {ratio}{x['cl']} | "
+              f"{x['feed_m']:.1f} ({x['feed_m'] / base['feed_m']:.2f}) | {x['p999']:.3f} | {x['p99']:.3f} | "
+              f"{x['excused']} | {x['gouge_um']:.1f} | {x['rs274']} |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

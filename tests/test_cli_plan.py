@@ -96,14 +96,19 @@ def test_spacing_option_reaches_the_report(part, tmp_path, capsys):
         assert main(["plan", str(part), "--pattern", "contour", "--tool-radius", "4", "--scallop", "0.5",
                      "--spacing", spacing, "-o", str(out), "--report", str(rep), "-q"]) == 0
         assert json.loads(rep.read_text())["job"]["spacing"] == spacing
+    _refused_choice(part, tmp_path, capsys, "--spacing", "dense")
+
+
+def _refused_choice(part, tmp_path, capsys, flag, value):
+    """An unknown choice of ``flag``: exit 2, the flag named, no traceback, no output file."""
     capsys.readouterr()
     bad = tmp_path / "bad.nc"
     try:
-        rc = main(["plan", str(part), "--tool-radius", "4", "--scallop", "0.5", "--spacing", "dense", "-o", str(bad)])
+        rc = main(["plan", str(part), "--tool-radius", "4", "--scallop", "0.5", flag, value, "-o", str(bad)])
     except SystemExit as exc:  # argparse's own exit for an unknown choice
         rc = exc.code
     err = capsys.readouterr().err
-    assert rc == 2 and "spacing" in err and "Traceback" not in err
+    assert rc == 2 and flag.lstrip("-") in err and "Traceback" not in err
     assert not bad.exists()
 
 
@@ -113,12 +118,4 @@ def test_fit_option_reaches_the_report_and_the_header(part, tmp_path, capsys):
                  "--fit", "split", "-o", str(out), "--report", str(rep), "-q"]) == 0
     assert json.loads(rep.read_text())["job"]["fit"] == "split"
     assert "fit: split" in out.read_text()
-    capsys.readouterr()
-    bad = tmp_path / "bad.nc"
-    try:
-        rc = main(["plan", str(part), "--tool-radius", "4", "--scallop", "0.5", "--fit", "coarse", "-o", str(bad)])
-    except SystemExit as exc:  # argparse's own exit for an unknown choice
-        rc = exc.code
-    err = capsys.readouterr().err
-    assert rc == 2 and "fit" in err and "Traceback" not in err
-    assert not bad.exists()
+    _refused_choice(part, tmp_path, capsys, "--fit", "coarse")

@@ -132,15 +132,16 @@ def main(argv=None) -> int:
             rows.append(row)
             print(f"  {name}: {wall:.2f} s wall, {cpu:.2f} s cpu, {row['cl']} CL points, {row['feed_m']:.1f} m; "
                   f"reachable p99.9 {row['p999']:.3f} h, p99 {row['p99']:.3f} h", flush=True)
-    base = next((x for x in rows if x["variant"] == "default"), rows[0])
+    base = next((x for x in rows if x["variant"] == "default"), None)
     print()
     print("| variant | plan + G-code s (cpu s) | " + ("OCL time / this | " if ocl_s else "")
           + "CL points | feed m (x default) | reachable p99.9 / h | p99 / h | excused | gouge um | rs274 |")
     print("|---|---|" + ("---|" if ocl_s else "") + "---|---|---|---|---|---|---|")
     for x in rows:
         ratio = f"{ocl_s / x['wall']:.1f} | " if ocl_s else ""
+        rel = f"{x['feed_m'] / base['feed_m']:.2f}" if base else "-"
         print(f"| {x['variant']} | {x['wall']:.2f} ({x['cpu']:.2f}) | {ratio}{x['cl']} | "
-              f"{x['feed_m']:.1f} ({x['feed_m'] / base['feed_m']:.2f}) | {x['p999']:.3f} | {x['p99']:.3f} | "
+              f"{x['feed_m']:.1f} ({rel}) | {x['p999']:.3f} | {x['p99']:.3f} | "
               f"{x['excused']} | {x['gouge_um']:.1f} | {x['rs274']} |")
     return 0
 

@@ -47,6 +47,20 @@ def test_plane_tool_tip_sits_on_plane(zigzag_square):
     np.testing.assert_allclose(tips[:, 2], 0.0, atol=1e-9)
 
 
+def test_split_fit_spaces_a_dome_more_densely():
+    # on chords the split fit reads twice the curvature at the input's vertices, and with the
+    # min rule that sets each path's step: more paths and CL points, every one still within
+    # the allowed interval of its neighbour
+    dome = synthetic.sphere_cap(R=50.0, radius_xy=25.0, spacing=1.5, jitter=0.2)
+    job = Job(pattern="contour", tool_radius=R_TOOL, scallop=0.2, tolerance=0.01)
+    a = plan(dome, job)
+    b = plan(dome, Job(**{**job.__dict__, "fit": "split"}))
+    assert len(b.domain_paths.paths) > len(a.domain_paths.paths)
+    assert b.report["paths"]["cl_points"] > a.report["paths"]["cl_points"]
+    for p in b.domain_paths.paths[:-1]:
+        assert np.all(p.side_realised <= p.side_allowed * (1 + 1e-9))
+
+
 @pytest.mark.parametrize("fit", ["mesh", "split"])
 def test_cc_points_lie_on_mesh_and_ball_centre_is_r_along_normal(fit):
     dome = synthetic.sphere_cap(R=50.0, radius_xy=25.0, spacing=1.5, jitter=0.2)

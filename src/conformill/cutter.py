@@ -991,7 +991,8 @@ class BallCutter:
             # A horizontal normal (an outward wall at the part's rim) puts the ideal centre
             # exactly r from ``cc`` in XY, where rounding can leave the ball touching nothing.
             # Its centre moves towards ``cc`` by a relative _RIM_PULL: ``cc`` is then within
-            # reach, and the centre is an exact drop at its own XY like every other.
+            # reach, and the centre is an exact drop at its own XY like every other. Its lift
+            # then includes the ball's rise at the pull, about r sqrt(2e-6) (5.7 um at r = 4).
             ideal[miss, :2] = cc[miss, :2] + (1.0 - _RIM_PULL) * (ideal[miss, :2] - cc[miss, :2])
             z[miss], tri[miss] = self._drop(ideal[miss, :2], np.full(miss.size, -np.inf))
             miss = miss[~np.isfinite(z[miss])]

@@ -79,13 +79,15 @@ class Job:
         Scale of the per-vertex quadratic fit the planner spaces the paths from. "mesh"
         (default): each vertex's 1-ring of the input. "split": the 1-ring of the input split
         once at its edge midpoints (:func:`conformill.mesh.split.split_midpoints`, the same
-        surface), i.e. half the edge length: on a scan it sees facet creases and sharp rims
-        that the full-edge fit averages away, and spaces the paths for them (igea contour,
-        h = 0.01: reachable p99.9 1.256 h -> 1.086 h for 1.38x the feed; see README). On a
-        smooth tessellated surface it is merely conservative: the midpoints lie on chords,
-        so the fit reads twice the curvature at the input's vertices (and 0.7x at the
-        midpoints; measured on a sphere) and the paths come out denser than needed. The
-        cutter works on the input mesh either way.
+        surface), i.e. half the edge length, and the paths are sampled twice as densely.
+        On a scan the planner then spaces the paths for sharper curvature at facet creases
+        and rims (igea contour, h = 0.01: reachable p99.9 1.256 h -> 1.086 h for 1.38x the
+        feed; see README). The midpoints lie on chords, so on a smooth tessellated surface
+        the fit reads twice the curvature at the input's vertices and 0.7x at the midpoints
+        (measured on a sphere): with the min rule the paths come out denser than needed, and
+        the reachability report flags concave regions of radius up to about 2 r. The cutter
+        works on the input mesh either way; the report's concave-region face counts and
+        the frame's warnings then refer to the split mesh.
     """
 
     pattern: str = "spiral"

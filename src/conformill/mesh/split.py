@@ -42,7 +42,7 @@ def split_midpoints(V: np.ndarray, F: np.ndarray, uv: np.ndarray | None = None):
     MeshError
         Bad shapes or face indices outside the vertices.
     """
-    import trimesh
+    import trimesh  # >= 4.5.3: earlier 4.x put the attributes of the midpoints on the wrong edges
 
     V = np.ascontiguousarray(V, dtype=np.float64)
     F = np.ascontiguousarray(F, dtype=np.int64)

@@ -79,8 +79,9 @@ class Job:
         Scale of the per-vertex quadratic fit the planner spaces the paths from. "mesh"
         (default): each vertex's 1-ring of the input. "split": the 1-ring of the input split
         once at its edge midpoints (:func:`conformill.mesh.split.split_midpoints`, the same
-        surface), i.e. half the edge length, and the paths are sampled twice as densely.
-        On a scan the planner then spaces the paths for sharper curvature at facet creases
+        surface), i.e. half the edge length (the paths are sampled at the split mesh's edge
+        length where that is below a third of the flat step; on igea it is not). On a scan
+        the planner then spaces the paths for sharper curvature at facet creases
         and rims (igea contour, h = 0.01: reachable p99.9 1.256 h -> 1.086 h for 1.38x the
         feed; see README). The midpoints lie on chords, so on a smooth tessellated surface
         the fit reads twice the curvature at the input's vertices and 0.7x at the midpoints

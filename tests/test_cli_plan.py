@@ -46,6 +46,27 @@ def test_plan_all_outputs_verified(part, tmp_path, pattern, capsys):
     assert "PASS" in text
 
 
+def test_verify_scallop_judges_against_the_given_height(part, tmp_path, capsys):
+    # planned with a margin (H = 0.3), judged against the specified 0.5: the same program and
+    # simulation, the thresholds and the ratios taken against 0.5
+    out, rep = tmp_path / "m.nc", tmp_path / "m.json"
+    rc = main(["plan", str(part), "--pattern", "contour", "--tool-radius", "4", "--scallop", "0.3", "-o", str(out),
+               "--report", str(rep), "--verify", "--verify-samples", "60000", "--verify-scallop", "0.5"])
+    text = capsys.readouterr().out
+    v = json.loads(rep.read_text())["verify"]
+    assert rc == 0 and v["pass"] and v["judged_h"] == 0.5
+    assert v["scallop_over_h"]["p999"] == pytest.approx(v["scallop"]["p999"] / 0.5, abs=2e-6)  # the report keeps 6 decimals
+    q = v["reachable"]
+    assert q["scallop_over_h"]["p999"] == pytest.approx(q["scallop"]["p999"] / 0.5, abs=2e-6)
+    assert "(H = 0.5)" in text and "PASS" in text
+    # judged against a height far below the planned one: the check fails (exit 1), files kept
+    rc = main(["plan", str(part), "--pattern", "contour", "--tool-radius", "4", "--scallop", "0.5", "-o", str(out),
+               "--report", str(rep), "--verify", "--verify-samples", "60000", "--verify-scallop", "0.05", "-q"])
+    v = json.loads(rep.read_text())["verify"]
+    assert rc == 1 and not v["pass"] and v["judged_h"] == 0.05 and out.exists()
+    assert v["reachable"]["scallop"]["p999"] > 1.05 * 0.05
+
+
 def test_plan_is_deterministic(part, tmp_path):
     a, b = tmp_path / "a.nc", tmp_path / "b.nc"
     for o in (a, b):
@@ -75,6 +96,8 @@ def test_plan_programs_run_in_linuxcnc(part, tmp_path, pattern):
     (["--tool-radius", "4", "--scallop", "0.1", "--tolerance", "0"], 3, "tolerance"),
     (["--tool-radius", "4", "--scallop", "-0.1"], 3, "scallop"),
     (["--tool-radius", "4", "--scallop", "0.1", "--verify", "--verify-samples", "0"], 3, "samples"),
+    (["--tool-radius", "4", "--scallop", "0.1", "--verify", "--verify-scallop", "0"], 3, "verify-scallop"),
+    (["--tool-radius", "4", "--scallop", "0.1", "--verify", "--verify-scallop", "nan"], 3, "verify-scallop"),
 ])
 def test_bad_values_exit_without_output(part, tmp_path, capsys, args, code, word):
     out = tmp_path / "p.nc"

@@ -51,6 +51,9 @@ def add_arguments(p) -> None:
                    help="simulate the written program (conformill verify) and add its figures to the report")
     p.add_argument("--verify-samples", type=int, default=400_000, metavar="N",
                    help="surface samples for --verify (400000)")
+    p.add_argument("--verify-scallop", type=float, default=None, metavar="H",
+                   help="scallop height --verify judges against, mm (default: --scallop); lets a program "
+                        "planned with a margin (a smaller --scallop) be checked against the specified height")
 
 
 def _corners(text):
@@ -89,6 +92,9 @@ def run(args) -> int:
     check_job(job)
     if args.verify and args.verify_samples < 1:
         raise PlanningError(f"--verify-samples must be >= 1, got {args.verify_samples}")
+    judge_h = job.scallop if args.verify_scallop is None else float(args.verify_scallop)
+    if not (judge_h > 0 and judge_h < float("inf")):
+        raise PlanningError(f"--verify-scallop must be a positive number, got {args.verify_scallop}")
     t0 = time.perf_counter()
     t = time.perf_counter()
     mesh = read_mesh(args.mesh, scale=args.scale)
@@ -128,7 +134,7 @@ def run(args) -> int:
             program = read_gcode(args.output)
         if args.verify:
             t = time.perf_counter()
-            report["verify"] = _verify(result.mesh, program, job, args.verify_samples, args.quiet)
+            report["verify"] = _verify(result.mesh, program, job, args.verify_samples, args.quiet, judge_h)
             report["timings_s"]["verify"] = time.perf_counter() - t
         if args.html:
             from conformill.cli.view import vertex_heat
@@ -161,14 +167,16 @@ SCALLOP_SLACK = 1.05
 """--verify passes when scallop p99.9 <= SCALLOP_SLACK * H (and gouge max <= E)."""
 
 
-def _verify(mesh, program, job, n_samples: int, quiet: bool) -> dict:
+def _verify(mesh, program, job, n_samples: int, quiet: bool, judge_h: float | None = None) -> dict:
     """Run the independent simulation on the program as written to disk.
 
     ``program`` is read back from the G-code file (not taken from the planner's arrays), so
     the check covers the writer too. Thresholds: scallop ``1.05 H`` at p99.9 and no uncut
     sample over the reachable interior samples (farther than ``R`` from the boundary, see
-    ``verify(judge="reachable")``), gouge at most ``E`` over all interior samples.
+    ``verify(judge="reachable")``), gouge at most ``E`` over all interior samples. ``H`` is
+    ``judge_h`` (``--verify-scallop``), by default the planned scallop.
     """
+    judge_h = job.scallop if judge_h is None else judge_h
     from conformill.verify.simulate import verify
 
     bar = None
@@ -177,7 +185,7 @@ def _verify(mesh, program, job, n_samples: int, quiet: bool) -> dict:
 
         bar = tqdm(total=n_samples, desc="verify", unit="samples", unit_scale=True, leave=False, file=sys.stderr)
     try:
-        res = verify(mesh, program, job.tool_radius, n_samples=n_samples, scallop=SCALLOP_SLACK * job.scallop,
+        res = verify(mesh, program, job.tool_radius, n_samples=n_samples, scallop=SCALLOP_SLACK * judge_h,
                      gouge=job.tolerance, progress=bar.update if bar is not None else None, judge="reachable")
     finally:
         if bar is not None:
@@ -187,10 +195,11 @@ def _verify(mesh, program, job, n_samples: int, quiet: bool) -> dict:
             "gouge_max", "gouge_where", "gouge_line", "rapid_min_clearance", "rapid_min_line",
             "retract_min_clearance", "n_rapids", "n_retracts", "thresholds", "judged_on", "failures", "pass")
     out = {k: s[k] if k in s else s["interior"].get(k) for k in keep}
-    out["scallop_over_h"] = {k: v / job.scallop for k, v in s["scallop"].items()}
+    out["judged_h"] = judge_h
+    out["scallop_over_h"] = {k: v / judge_h for k, v in s["scallop"].items()}
     q = s["reachable"]
     out["reachable"] = {"unreachable_fraction": q["unreachable_fraction"], "scallop": q["scallop"],
-                        "scallop_over_h": {k: v / job.scallop for k, v in q["scallop"].items()},
+                        "scallop_over_h": {k: v / judge_h for k, v in q["scallop"].items()},
                         "uncut_fraction": q["uncut_fraction"], "gouge_max": q["gouge_max"],
                         "beyond_any_ball": q["beyond_any_ball"], "unconfirmed": q["unconfirmed"],
                         "tangent_test_scallop": q["tangent_test"]["scallop"]}
@@ -230,7 +239,8 @@ def _summary(rep: dict, out: str) -> None:
         lines.append(f"  verify            interior: scallop p50 {s['p50']:.4f} / p99.9 {s['p999']:.4f} / max "
                      f"{s['max']:.4f} mm, uncut {100 * v['uncut_fraction']:.3f}%, gouge max {v['gouge_max']:.4f} mm")
         lines.append(f"                    reachable ({100 * (1 - q['unreachable_fraction']):.2f}% of it): scallop "
-                     f"p99.9 {q['scallop']['p999']:.4f} mm = {q['scallop_over_h']['p999']:.3f} H, uncut "
+                     f"p99.9 {q['scallop']['p999']:.4f} mm = {q['scallop_over_h']['p999']:.3f} H"
+                     + ("" if v["judged_h"] == rep["job"]["scallop"] else f" (H = {v['judged_h']:g})") + ", uncut "
                      f"{100 * q['uncut_fraction']:.3f}%; rapid clearance {v['rapid_min_clearance']:.2f} mm: "
                      + ("PASS" if v["pass"] else "FAIL (" + "; ".join(v["failures"]) + ")"))
     lines.append(f"  time              {rep['timings_s']['total']:.2f} s -> {out}")

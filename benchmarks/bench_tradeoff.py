@@ -12,9 +12,9 @@ length and the time for the knobs that densify the program:
 * ``fit split``: ``Job.fit = "split"`` (``--fit split``): only the planner's curvature fit
   works on the split mesh below; the cutter stays on the input mesh;
 * ``fine``: the same job on the same surface split once more (every triangle into four at its
-  edge midpoints, :func:`trimesh.remesh.subdivide`; a planar split, so the surface and the
+  edge midpoints, :func:`conformill.mesh.split.split_midpoints`; a planar split, so the surface and the
   drop-cutter's heights are the same): the per-vertex quadratic fit then works at half the
-  edge length and sees a scan's facet creases sharper (both the planner and the cutter run
+  edge length (both the planner and the cutter run
   on the split mesh, so its time includes a cutter on four times the faces).
 
 Every program is written as G-code, read back and verified on the *original* mesh with the
@@ -62,17 +62,6 @@ VARIANTS = {
 }
 
 
-def split_once(mesh):
-    """The same surface with every triangle split into four at its edge midpoints."""
-    import trimesh
-
-    from conformill.types import Mesh
-
-    V, F = trimesh.remesh.subdivide(mesh.V, mesh.F)
-    return Mesh(V=np.ascontiguousarray(V, dtype=np.float64), F=np.ascontiguousarray(F, dtype=np.int64),
-                name=mesh.name + "_split")
-
-
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("mesh", nargs="?", default="igea")
@@ -90,10 +79,12 @@ def main(argv=None) -> int:
     logging.disable(logging.WARNING)
     from conformill.output.gcode import write_gcode
     from conformill.pipeline import Job, orient_mesh, plan
+    from conformill.mesh.split import split_midpoints
+    from conformill.types import Mesh
     from conformill.verify.samples import sample_surface
 
     h, r, e = args.h, args.r, args.e
-    mesh, info = _common.load_part(args.mesh)
+    mesh, _ = _common.load_part(args.mesh)
     mesh, _ = orient_mesh(mesh, "none")  # as plan() sees it: the verify mesh is the planned one
     print(_common.machine())
     print(f"{mesh.name}: {mesh.n_faces} faces; {args.pattern}, r = {r:g}, h = {h:g}, e = {e:g}; "
@@ -116,8 +107,9 @@ def main(argv=None) -> int:
         folder.mkdir(parents=True, exist_ok=True)
         for name in args.variants:
             over, factor, fine = VARIANTS[name]
-            if fine and split is None:
-                split = split_once(mesh)
+            if fine and split is None:  # the same surface, every triangle split into four
+                Vs, Fs, _ = split_midpoints(mesh.V, mesh.F)
+                split = Mesh(V=Vs, F=Fs, name=mesh.name + "_split")
             job = Job(pattern=args.pattern, tool_radius=r, scallop=factor * h, tolerance=e, **over)
             path = folder / f"{mesh.name}_{args.pattern}_{name.replace(' ', '_').replace(',', '')}.nc"
             t0, c0 = time.perf_counter(), time.process_time()

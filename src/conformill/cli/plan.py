@@ -167,16 +167,15 @@ SCALLOP_SLACK = 1.05
 """--verify passes when scallop p99.9 <= SCALLOP_SLACK * H (and gouge max <= E)."""
 
 
-def _verify(mesh, program, job, n_samples: int, quiet: bool, judge_h: float | None = None) -> dict:
+def _verify(mesh, program, job, n_samples: int, quiet: bool, judge_h: float) -> dict:
     """Run the independent simulation on the program as written to disk.
 
     ``program`` is read back from the G-code file (not taken from the planner's arrays), so
     the check covers the writer too. Thresholds: scallop ``1.05 H`` at p99.9 and no uncut
     sample over the reachable interior samples (farther than ``R`` from the boundary, see
     ``verify(judge="reachable")``), gouge at most ``E`` over all interior samples. ``H`` is
-    ``judge_h`` (``--verify-scallop``), by default the planned scallop.
+    ``judge_h`` (``--verify-scallop``, by default the planned scallop).
     """
-    judge_h = job.scallop if judge_h is None else judge_h
     from conformill.verify.simulate import verify
 
     bar = None

@@ -4,8 +4,8 @@ A planar split: each new vertex is the midpoint of an edge, so the split mesh is
 surface point for point (its facets lie in the input's facets) and a drop-cutter sees the
 same heights on both. What changes is the scale of anything fitted per vertex over a
 1-ring: the per-vertex quadratic (:func:`conformill.geometry.differential.surface_frame`)
-then works at half the edge length, where a scan's facet creases and sharp rims stand out
-instead of being averaged over a full edge.
+then works at half the edge length (on chords: about twice the curvature at the input's
+vertices, see ``Job.fit``).
 """
 
 from __future__ import annotations

@@ -59,9 +59,10 @@ def test_verify_scallop_judges_against_the_given_height(part, tmp_path, capsys):
     q = v["reachable"]
     assert q["scallop_over_h"]["p999"] == pytest.approx(q["scallop"]["p999"] / 0.5, abs=2e-6)
     assert "(H = 0.5)" in text and "PASS" in text
-    # judged against a height far below the planned one: the check fails (exit 1), files kept
+    # judged against a height far below the planned one: the check fails (exit 1), files kept;
+    # --verify-scallop alone asks for the check (it implies --verify)
     rc = main(["plan", str(part), "--pattern", "contour", "--tool-radius", "4", "--scallop", "0.5", "-o", str(out),
-               "--report", str(rep), "--verify", "--verify-samples", "60000", "--verify-scallop", "0.05", "-q"])
+               "--report", str(rep), "--verify-samples", "60000", "--verify-scallop", "0.05", "-q"])
     v = json.loads(rep.read_text())["verify"]
     assert rc == 1 and not v["pass"] and v["judged_h"] == 0.05 and out.exists()
     assert v["reachable"]["scallop"]["p999"] > 1.05 * 0.05

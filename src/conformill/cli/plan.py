@@ -53,7 +53,8 @@ def add_arguments(p) -> None:
                    help="surface samples for --verify (400000)")
     p.add_argument("--verify-scallop", type=float, default=None, metavar="H",
                    help="scallop height --verify judges against, mm (default: --scallop); lets a program "
-                        "planned with a margin (a smaller --scallop) be checked against the specified height")
+                        "planned with a margin (a smaller --scallop) be checked against the specified height; "
+                        "implies --verify")
 
 
 def _corners(text):
@@ -90,6 +91,8 @@ def run(args) -> int:
     from conformill.pipeline import check_job
 
     check_job(job)
+    if args.verify_scallop is not None:  # asking for a judged height is asking for the check
+        args.verify = True
     if args.verify and args.verify_samples < 1:
         raise PlanningError(f"--verify-samples must be >= 1, got {args.verify_samples}")
     judge_h = job.scallop if args.verify_scallop is None else float(args.verify_scallop)

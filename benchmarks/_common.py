@@ -197,3 +197,21 @@ def reachable_samples(mesh, samples, r: float, tol: float) -> np.ndarray:
     d2, _, _ = igl.point_mesh_squared_distance(C, np.ascontiguousarray(mesh.V, dtype=np.float64),
                                                np.ascontiguousarray(mesh.F, dtype=np.int64))
     return (N[:, 2] > 0) & (d2 >= (r - tol) ** 2)
+
+
+def scan_job_parser(doc: str, patterns):
+    """An argument parser with the arguments every one-mesh scan study shares.
+
+    ``mesh`` (a key of :data:`MESH_FILES`, default igea), ``--pattern`` (default contour),
+    ``--h``, ``--r``, ``--e`` (0.01, 4, 0.01 mm) and ``--samples`` (400000 verify samples).
+    """
+    import argparse
+
+    ap = argparse.ArgumentParser(description=doc.splitlines()[0])
+    ap.add_argument("mesh", nargs="?", default="igea")
+    ap.add_argument("--pattern", default="contour", choices=patterns)
+    ap.add_argument("--h", type=float, default=0.01)
+    ap.add_argument("--r", type=float, default=4.0)
+    ap.add_argument("--e", type=float, default=0.01)
+    ap.add_argument("--samples", type=int, default=400_000)
+    return ap

@@ -31,7 +31,6 @@ is run once in the same process and the ratio printed.
 
 from __future__ import annotations
 
-import argparse
 import sys
 import tempfile
 import time
@@ -63,13 +62,7 @@ VARIANTS = {
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("mesh", nargs="?", default="igea")
-    ap.add_argument("--pattern", default="contour", choices=BR.PATTERNS)
-    ap.add_argument("--h", type=float, default=0.01)
-    ap.add_argument("--r", type=float, default=4.0)
-    ap.add_argument("--e", type=float, default=0.01)
-    ap.add_argument("--samples", type=int, default=400_000)
+    ap = _common.scan_job_parser(__doc__, BR.PATTERNS)
     ap.add_argument("--variants", nargs="*", default=list(VARIANTS), choices=list(VARIANTS))
     ap.add_argument("--ocl", action="store_true", help="also time OpenCAMLib's raster once (minutes on igea)")
     ap.add_argument("--keep", default=None, help="folder to keep the programs in")

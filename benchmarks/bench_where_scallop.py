@@ -10,10 +10,12 @@ against a random control set of reachable samples:
   (:func:`conformill.verify.rest.rest_material`, the search ``verify`` uses);
 * ``own``: what the program leaves above that rest (``remaining - rest``);
 * ``gap``: the 3D distance between the nearest CC point and the nearest CC point of
-  another path on the sample's other side (the side interval the planner realised there);
+  another path on the sample's other side (the side interval the planner realised there,
+  measured point to point: an upper bound, loose where the CC points lie far apart along
+  the paths, e.g. on flat ground);
 * ``model``: the cusp height the planner's own model gives for that gap
   (:func:`conformill.planning.steps.scallop_height` with the normal curvature of the
-  planner's quadratic fit at the sample, across the gap).
+  planner's quadratic fit at the sample, across the gap; an upper bound as the gap is).
 
 If ``model`` is far below the limit where the samples are over it, the paths are not too
 far apart for the surface the planner sees; the material comes from features below the
@@ -25,7 +27,6 @@ fit's scale (``rest``).
 
 from __future__ import annotations
 
-import argparse
 import sys
 import tempfile
 import time
@@ -78,16 +79,10 @@ def _gaps(P, cc_paths, k: int = 64):
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("mesh", nargs="?", default="igea")
-    ap.add_argument("--pattern", default="contour", choices=BR.PATTERNS)
-    ap.add_argument("--h", type=float, default=0.01)
-    ap.add_argument("--r", type=float, default=4.0)
-    ap.add_argument("--e", type=float, default=0.01)
+    ap = _common.scan_job_parser(__doc__, BR.PATTERNS)
     ap.add_argument("--fit", default="mesh", choices=("mesh", "split"))
     ap.add_argument("--settle", type=float, default=0.5)
     ap.add_argument("--planned", type=float, default=1.0, help="paths spaced for this factor times h")
-    ap.add_argument("--samples", type=int, default=400_000)
     ap.add_argument("--control", type=int, default=3000)
     args = ap.parse_args(argv)
     import logging
@@ -147,11 +142,13 @@ def main(argv=None) -> int:
     print("|---|---|---|---|---|---|---|---|")
 
     def q(x):
+        if not np.isfinite(x).any():
+            return "-"
         a, b, c = np.nanpercentile(x, [10, 50, 90])
         return f"{a:.2f} / {b:.2f} / {c:.2f}"
     for name, n, rm, rs, own, gap, model in rows:
         print(f"| {name} | {n} | {q(rm)} | {q(rs)} | {q(own)} | {q(gap)} | {q(model)} | "
-              f"{100 * np.mean(rs > 0.5):.1f} % |")
+              f"{100 * np.mean(rs > 0.5) if n else 0.0:.1f} % |")
     print("\n(each cell: 10th / 50th / 90th percentile)")
     return 0
 

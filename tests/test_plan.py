@@ -5,7 +5,7 @@ import pytest
 
 from conformill.errors import PlanningError
 from conformill.mesh import synthetic
-from conformill.pipeline import Job, plan
+from conformill.pipeline import Job, plan, with_overrides
 
 R_TOOL, H = 4.0, 0.1
 FLAT = 2 * np.sqrt(H * (2 * R_TOOL - H))
@@ -54,7 +54,7 @@ def test_split_fit_spaces_a_dome_more_densely():
     dome = synthetic.sphere_cap(R=50.0, radius_xy=25.0, spacing=1.5, jitter=0.2)
     job = Job(pattern="contour", tool_radius=R_TOOL, scallop=0.2, tolerance=0.01)
     a = plan(dome, job)
-    b = plan(dome, Job(**{**job.__dict__, "fit": "split"}))
+    b = plan(dome, with_overrides(job, fit="split"))
     assert len(b.domain_paths.paths) > len(a.domain_paths.paths)
     assert b.report["paths"]["cl_points"] > a.report["paths"]["cl_points"]
     for p in b.domain_paths.paths[:-1]:

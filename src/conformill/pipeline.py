@@ -312,16 +312,14 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
         with timer("frame"):
             # the mesh the planner sees: the input, or the same surface split at its edge
             # midpoints (Job.fit); the cutter works on the input either way
-            fmesh, ffa = mesh, fa
+            fmesh, ffa, fuv = mesh, fa, param.uv
             if job.fit == "split":
                 from conformill.mesh.split import split_midpoints
 
-                Vs, Fs, uvs = split_midpoints(mesh.V, mesh.F, param.uv)
+                Vs, Fs, fuv = split_midpoints(mesh.V, mesh.F, param.uv)
                 fmesh = Mesh(V=Vs, F=Fs, name=mesh.name)
                 ffa = face_normals(Vs, Fs)[1]
-                surface = DomainSurface(Vs, Fs, uvs)
-            else:
-                surface = DomainSurface(mesh.V, mesh.F, param.uv)
+            surface = DomainSurface(fmesh.V, fmesh.F, fuv)
 
         with timer("reachability"):
             from conformill.geometry.differential import interpolate  # noqa: F401  (frame is per vertex)

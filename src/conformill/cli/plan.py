@@ -38,8 +38,8 @@ def add_arguments(p) -> None:
     p.add_argument("--fit", choices=["mesh", "split"], default="mesh",
                    help="scale of the curvature fit the paths are spaced from: each vertex's 1-ring (mesh, "
                         "default) or the 1-ring of the mesh split once at its edge midpoints (split: the same "
-                        "surface at half the edge length; on scans it sees facet creases and sharp rims, for a "
-                        "smaller scallop and a longer program)")
+                        "surface at half the edge length; it reads about twice the curvature at the input's vertices: "
+                        "on scans a smaller scallop for a longer program)")
     p.add_argument("--max-step", type=float, default=10.0, metavar="L", help="longest forward step, mm (10)")
     p.add_argument("--threads", type=int, default=None, metavar="N",
                    help="threads for parallel stages (default all; with 1 the cutter runs after the pattern stage)")

@@ -90,6 +90,7 @@ def main(argv=None) -> int:
     logging.disable(logging.WARNING)
     from conformill.cutter import BallCutter
     from conformill.geometry.differential import surface_frame
+    from conformill.mesh.split import split_midpoints
     from conformill.output.gcode import write_gcode
     from conformill.pipeline import Job, orient_mesh, plan
     from conformill.planning.steps import scallop_height
@@ -126,14 +127,18 @@ def main(argv=None) -> int:
           f"p99.9 is met at 1 per mille); reachable p99.9 {v.summary['reachable']['scallop']['p999'] / h:.3f} h")
 
     cutter = BallCutter(mesh.V, mesh.F, r)
-    fr = surface_frame(mesh.V, mesh.F, res.param.uv)
+    # the fit the planner spaced the paths from (Job.fit): on the input, or on the mesh split once
+    fV, fF, fuv = mesh.V, mesh.F, res.param.uv
+    if args.fit == "split":
+        fV, fF, fuv = split_midpoints(mesh.V, mesh.F, res.param.uv)
+    fr = surface_frame(fV, fF, fuv)
     P, N = samples.points, samples.normals
     rows = []
     for name, S in (("over 1.05 h", over), ("random reachable", control)):
         rest = rest_material(cutter, P[S], N[S])
         A, B, has = _gaps(P[S], res.cc_paths)
         gap = np.linalg.norm(B - A, axis=1)
-        kap = _curvature_along(_frame_at(mesh.V, mesh.F, fr, P[S]), np.nan_to_num(B - A))
+        kap = _curvature_along(_frame_at(fV, fF, fr, P[S]), np.nan_to_num(B - A))
         model = np.where(has, scallop_height(np.nan_to_num(gap), r, kap), np.nan)
         rows.append((name, S.size, rem[S] / h, rest / h, (rem[S] - rest) / h, gap, model / h))
     print()

@@ -322,8 +322,6 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
             surface = DomainSurface(fmesh.V, fmesh.F, fuv)
 
         with timer("reachability"):
-            from conformill.geometry.differential import interpolate  # noqa: F401  (frame is per vertex)
-
             fr = surface.frame
             kmax_v = principal_concave(np.column_stack([fr.E, fr.F, fr.G]), np.column_stack([fr.L, fr.M, fr.N]))
             unreach_v = kmax_v >= 1.0 / r

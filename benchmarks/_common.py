@@ -215,3 +215,38 @@ def scan_job_parser(doc: str, patterns):
     ap.add_argument("--e", type=float, default=0.01)
     ap.add_argument("--samples", type=int, default=400_000)
     return ap
+
+
+def scan_study(args):
+    """What every one-mesh scan study does first (``args`` from :func:`scan_job_parser`).
+
+    Warnings off, the part loaded and oriented as ``plan`` sees it (the verify mesh is the
+    planned one), the machine printed. Returns ``(mesh, samples)``: the verify samples as
+    ``bench_raster.py`` draws them (``args.samples``, seed 0).
+    """
+    import logging
+
+    from conformill.pipeline import orient_mesh
+    from conformill.verify.samples import sample_surface
+
+    logging.disable(logging.WARNING)
+    mesh, _ = load_part(args.mesh)
+    mesh, _ = orient_mesh(mesh, "none")
+    print(machine())
+    samples = sample_surface(mesh.V, mesh.F, args.samples, seed=0, boundary_spacing=min(0.1, args.r / 20),
+                             boundary_max=2 * args.r)
+    return mesh, samples
+
+
+def verify_plan(mesh, res, samples, h: float, r: float, e: float):
+    """Write the program of plan result ``res``, read it back and verify it as the raster run
+    does (limit 1.05 h, reach depth h, gouge e, the reachable judge): ``(program, result)``."""
+    from conformill.output.gcode import write_gcode
+    from conformill.verify.gcode import read_gcode
+    from conformill.verify.simulate import verify
+
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "p.nc"
+        write_gcode(path, res.toolpath, feed=1000.0, plunge_feed=1000.0 / 3)
+        prog = read_gcode(path)
+    return prog, verify(mesh, prog, r, samples=samples, scallop=1.05 * h, reach_depth=h, gouge=e, judge="reachable")

@@ -21,7 +21,6 @@ in the package changes.
 from __future__ import annotations
 
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -51,25 +50,14 @@ def main(argv=None) -> int:
     ap.add_argument("--lift", type=float, default=1.0, help="runs lifted more than this (mm) are thinned")
     ap.add_argument("--keep", type=int, default=8, help="keep every KEEP-th point of such a run")
     args = ap.parse_args(argv)
-    import logging
-
-    logging.disable(logging.WARNING)
     from conformill.cutter import BallCutter
-    from conformill.output.gcode import write_gcode
-    from conformill.pipeline import Job, orient_mesh, plan
-    from conformill.verify.gcode import read_gcode
-    from conformill.verify.samples import sample_surface
-    from conformill.verify.simulate import verify
+    from conformill.pipeline import Job, plan
 
     h, r, e = args.h, args.r, args.e
-    mesh, _ = _common.load_part(args.mesh)
-    mesh, _ = orient_mesh(mesh, "none")
-    print(_common.machine())
+    mesh, samples = _common.scan_study(args)
     job = Job(pattern=args.pattern, tool_radius=r, scallop=h, tolerance=e)
     print(f"{mesh.name}: {mesh.n_faces} faces; {args.pattern}, r = {r:g}, h = {h:g}, e = {e:g}; "
           f"thinned: runs lifted > {args.lift:g} mm, every {args.keep}th point kept", flush=True)
-    samples = sample_surface(mesh.V, mesh.F, args.samples, seed=0, boundary_spacing=min(0.1, r / 20),
-                             boundary_max=2 * r)
     plan(mesh, job)  # warm numba's caches: the timed plans below compare
     original = BallCutter.cl_from_cc
     seen = {"lifts": [], "in": 0, "kept": 0, "thin": False}
@@ -99,11 +87,7 @@ def main(argv=None) -> int:
             print("CC points by lift (mm): " + ", ".join(
                 f"[{a:g}, {b:g}) {100 * np.mean((lift >= a) & (lift < b)):.1f} %"
                 for a, b in zip(LIFT_EDGES[:-1], LIFT_EDGES[1:])) + f" of {lift.size}")
-        with tempfile.TemporaryDirectory() as tmp:
-            path = Path(tmp) / "p.nc"
-            write_gcode(path, res.toolpath, feed=1000.0, plunge_feed=1000.0 / 3)
-            prog = read_gcode(path)
-        v = verify(mesh, prog, r, samples=samples, scallop=1.05 * h, reach_depth=h, gouge=e, judge="reachable")
+        prog, v = _common.verify_plan(mesh, res, samples, h, r, e)
         s = v.summary["reachable"]["scallop"]
         rows.append((name, t, res.report["paths"]["cl_points"], BR.cut_length(prog, res.toolpath.safe_z) / 1000,
                      s["p99"] / h, s["p999"] / h))

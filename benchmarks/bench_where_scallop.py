@@ -28,7 +28,6 @@ fit's scale (``rest``).
 from __future__ import annotations
 
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -85,39 +84,25 @@ def main(argv=None) -> int:
     ap.add_argument("--planned", type=float, default=1.0, help="paths spaced for this factor times h")
     ap.add_argument("--control", type=int, default=3000)
     args = ap.parse_args(argv)
-    import logging
-
-    logging.disable(logging.WARNING)
     from conformill.cutter import BallCutter
     from conformill.geometry.differential import surface_frame
     from conformill.mesh.split import split_midpoints
-    from conformill.output.gcode import write_gcode
-    from conformill.pipeline import Job, orient_mesh, plan
+    from conformill.pipeline import Job, plan
     from conformill.planning.steps import scallop_height
-    from conformill.verify.gcode import read_gcode
     from conformill.verify.rest import rest_material
-    from conformill.verify.samples import sample_surface
-    from conformill.verify.simulate import verify
 
     h, r, e = args.h, args.r, args.e
-    mesh, _ = _common.load_part(args.mesh)
-    mesh, _ = orient_mesh(mesh, "none")
-    print(_common.machine())
+    mesh, samples = _common.scan_study(args)
     job = Job(pattern=args.pattern, tool_radius=r, scallop=args.planned * h, tolerance=e, settle=args.settle,
               fit=args.fit)
     print(f"{mesh.name}: {mesh.n_faces} faces; {args.pattern}, r = {r:g}, h = {h:g}, e = {e:g}, fit {args.fit}, "
           f"settle {args.settle:g}, planned {args.planned:g} h", flush=True)
     t0 = time.perf_counter()
     res = plan(mesh, job)
-    with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / "p.nc"
-        write_gcode(path, res.toolpath, feed=1000.0, plunge_feed=1000.0 / 3)
-        prog = read_gcode(path)
-    print(f"plan {time.perf_counter() - t0:.1f} s, {res.report['paths']['cl_points']} CL points, "
+    t_plan = time.perf_counter() - t0
+    prog, v = _common.verify_plan(mesh, res, samples, h, r, e)
+    print(f"plan {t_plan:.1f} s, {res.report['paths']['cl_points']} CL points, "
           f"feed {BR.cut_length(prog, res.toolpath.safe_z) / 1000:.1f} m", flush=True)
-    samples = sample_surface(mesh.V, mesh.F, args.samples, seed=0, boundary_spacing=min(0.1, r / 20),
-                             boundary_max=2 * r)
-    v = verify(mesh, prog, r, samples=samples, scallop=1.05 * h, reach_depth=h, gouge=e, judge="reachable")
     rem, ok = v.remaining, v.reachable
     over = np.flatnonzero(ok & (rem > 1.05 * h))
     rng = np.random.default_rng(0)

@@ -238,15 +238,21 @@ def scan_study(args):
     return mesh, samples
 
 
-def verify_plan(mesh, res, samples, h: float, r: float, e: float):
-    """Write the program of plan result ``res``, read it back and verify it as the raster run
-    does (limit 1.05 h, reach depth h, gouge e, the reachable judge): ``(program, result)``."""
+def program_of(res):
+    """The program of plan result ``res`` as ``conformill verify`` reads it: written as G-code
+    (feed 1000, plunge 1000 / 3) and read back."""
     from conformill.output.gcode import write_gcode
     from conformill.verify.gcode import read_gcode
-    from conformill.verify.simulate import verify
 
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "p.nc"
         write_gcode(path, res.toolpath, feed=1000.0, plunge_feed=1000.0 / 3)
-        prog = read_gcode(path)
-    return prog, verify(mesh, prog, r, samples=samples, scallop=1.05 * h, reach_depth=h, gouge=e, judge="reachable")
+        return read_gcode(path)
+
+
+def verify_program(mesh, prog, samples, h: float, r: float, e: float):
+    """Verify ``prog`` as the raster run does: limit 1.05 h, reach depth h, gouge e, the
+    reachable judge."""
+    from conformill.verify.simulate import verify
+
+    return verify(mesh, prog, r, samples=samples, scallop=1.05 * h, reach_depth=h, gouge=e, judge="reachable")

@@ -30,7 +30,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _common  # noqa: E402
 import bench_raster as BR  # noqa: E402
 
-LIFT_EDGES = (0.0, 1e-3, 1e-2, 0.1, 1.0, 3.0, np.inf)
+LIFT_EDGES = (-np.inf, 1e-3, 1e-2, 0.1, 1.0, 3.0, np.inf)
 
 
 def thinned(lift, limit: float, keep: int) -> np.ndarray:
@@ -87,7 +87,8 @@ def main(argv=None) -> int:
             print("CC points by lift (mm): " + ", ".join(
                 f"[{a:g}, {b:g}) {100 * np.mean((lift >= a) & (lift < b)):.1f} %"
                 for a, b in zip(LIFT_EDGES[:-1], LIFT_EDGES[1:])) + f" of {lift.size}")
-        prog, v = _common.verify_plan(mesh, res, samples, h, r, e)
+        prog = _common.program_of(res)
+        v = _common.verify_program(mesh, prog, samples, h, r, e)
         s = v.summary["reachable"]["scallop"]
         rows.append((name, t, res.report["paths"]["cl_points"], BR.cut_length(prog, res.toolpath.safe_z) / 1000,
                      s["p99"] / h, s["p999"] / h))

@@ -99,10 +99,10 @@ def main(argv=None) -> int:
           f"settle {args.settle:g}, planned {args.planned:g} h", flush=True)
     t0 = time.perf_counter()
     res = plan(mesh, job)
-    t_plan = time.perf_counter() - t0
-    prog, v = _common.verify_plan(mesh, res, samples, h, r, e)
-    print(f"plan {t_plan:.1f} s, {res.report['paths']['cl_points']} CL points, "
+    prog = _common.program_of(res)
+    print(f"plan {time.perf_counter() - t0:.1f} s, {res.report['paths']['cl_points']} CL points, "
           f"feed {BR.cut_length(prog, res.toolpath.safe_z) / 1000:.1f} m", flush=True)
+    v = _common.verify_program(mesh, prog, samples, h, r, e)
     rem, ok = v.remaining, v.reachable
     over = np.flatnonzero(ok & (rem > 1.05 * h))
     rng = np.random.default_rng(0)

@@ -63,14 +63,14 @@ def main(argv=None) -> int:
     seen = {"lifts": [], "in": 0, "kept": 0, "thin": False}
 
     def wrapped(self, cc, n, contacts=False):
-        centre, lift, tri = original(self, cc, n, contacts=True)
-        m = thinned(lift, args.lift, args.keep) if seen["thin"] else np.ones(len(lift), dtype=bool)
-        if seen["thin"]:
-            seen["in"] += len(m)
-            seen["kept"] += int(m.sum())
-        else:
-            seen["lifts"].append(lift)
-        return (centre[m], lift[m], tri[m]) if contacts else (centre[m], lift[m])
+        out = original(self, cc, n, contacts=contacts)
+        if not seen["thin"]:  # as planned: only the lifts are recorded
+            seen["lifts"].append(out[1])
+            return out
+        m = thinned(out[1], args.lift, args.keep)
+        seen["in"] += len(m)
+        seen["kept"] += int(m.sum())
+        return tuple(x[m] for x in out)
 
     rows = []
     for name in ("as planned", "thinned"):

@@ -295,8 +295,6 @@ def measure(mesh, path: Path, r, h, e, samples, reach, safe_z):
 
 
 def run_mesh(name, h, r, e, n_samples, folder: Path, log):
-    from conformill.verify.samples import sample_surface
-
     mesh, info = _common.load_part(name)
     ext = info["extent_mm"]
     log(f"\n== {mesh.name}: {mesh.n_faces} faces, {ext[0]:.1f} x {ext[1]:.1f} x {ext[2]:.1f} mm "
@@ -330,7 +328,7 @@ def run_mesh(name, h, r, e, n_samples, folder: Path, log):
         f"the part), {ras['rows']} rows at {ras['stepover']:.4f} mm; chord check |dz| p99 "
         f"{np.percentile(np.abs(dz), 99):.4f} p99.9 {np.percentile(np.abs(dz), 99.9):.4f} max {np.abs(dz).max():.4f} mm (gouge side max {max(dz.max(), 0):.4f})")
 
-    samples = sample_surface(mesh.V, mesh.F, n_samples, seed=0, boundary_spacing=min(0.1, r / 20), boundary_max=2 * r)
+    samples = _common.verify_samples(mesh, n_samples, r)
     reach = _common.reachable_samples(mesh, samples, r, tol=h)
     interior = samples.boundary_distance > r
     reach_share = float((reach & interior).sum() / max(interior.sum(), 1))
@@ -417,14 +415,12 @@ def markdown(results, machine: str) -> str:
 def reverify(old: dict, folder: Path, log) -> dict:
     """Measure the kept programs of one mesh again (e.g. after ``verify`` changed)."""
     from conformill.pipeline import orient_mesh
-    from conformill.verify.samples import sample_surface
 
     name = next(k for k in _common.MESH_FILES if k.replace("sample:", "sample_") == old["mesh"])
     mesh, _ = _common.load_part(name)
     mesh, _ = orient_mesh(mesh, "none")  # as plan() did: re-wound if the normals point down
     r, h, e = old["r"], old["h"], old["e"]
-    samples = sample_surface(mesh.V, mesh.F, old["samples"], seed=0, boundary_spacing=min(0.1, r / 20),
-                             boundary_max=2 * r)
+    samples = _common.verify_samples(mesh, old["samples"], r)
     reach = _common.reachable_samples(mesh, samples, r, tol=h)
     new = dict(old, rows=[])
     for row in old["rows"]:

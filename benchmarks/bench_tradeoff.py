@@ -74,7 +74,6 @@ def main(argv=None) -> int:
     from conformill.pipeline import Job, orient_mesh, plan
     from conformill.mesh.split import split_midpoints
     from conformill.types import Mesh
-    from conformill.verify.samples import sample_surface
 
     h, r, e = args.h, args.r, args.e
     mesh, _ = _common.load_part(args.mesh)
@@ -90,8 +89,7 @@ def main(argv=None) -> int:
         ras = BR.ocl_zigzag(mesh, r, h, s)
         ocl_s = ras["wall_s"]
         print(f"OpenCAMLib raster: {ocl_s:.1f} s wall, {ras['cl_points']} CL points", flush=True)
-    samples = sample_surface(mesh.V, mesh.F, args.samples, seed=0, boundary_spacing=min(0.1, r / 20),
-                             boundary_max=2 * r)
+    samples = _common.verify_samples(mesh, args.samples, r)
     reach = _common.reachable_samples(mesh, samples, r, tol=h)
     split = None
     rows = []

@@ -22,12 +22,22 @@ judged by ``verify`` on its own samples (400k, seed 0, limit 1.05 h, reach depth
     ``--grid`` mm, cells where the slope changes by more than ``--kink`` (dimensionless)
     across the cell in one of four directions, chained per connected component, each point moved
     across the chain to where the drop height lies lowest below the chord (the fold).
+``--mode kinks``
+    the program plus passes along the valleys its own passes cross (session 20): every CL
+    point where the program's centre polyline turns upwards by more than ``--kmin`` rad
+    (a fold or a tight valley of the drop surface, crossed by a pass), chained greedily
+    across passes where they lie within ``--link`` mm, each chain moved onto the fold as in
+    ``creases``; no extra drops to find them, but the program's own kinks are many.
+
+``--settle F`` settles each extra pass (``BallCutter.settle`` with ``F h``) before it is
+refined; 0 (default) as in session 12's runs.
 
 Usage::
 
     python benchmarks/bench_cleanup.py igea DIR/igea_contour_h0.01.nc --mode best --samples 1000000 --low 0.15
     python benchmarks/bench_cleanup.py igea DIR/igea_contour_h0.01.nc --mode creases --grid 0.1 --kink 0.4
     python benchmarks/bench_cleanup.py igea DIR/igea_contour_h0.01.nc --mode stepover --pattern contour
+    python benchmarks/bench_cleanup.py igea DIR/igea_contour_h0.01.nc --mode kinks --kmin 0.08 --settle 0.5
 """
 
 from __future__ import annotations
@@ -141,21 +151,44 @@ def crease_chains(mesh, cut, g, kink):
         for ch in chain(P, 2.5 * g):
             if len(ch) < 4:
                 continue
-            T = np.gradient(ch, axis=0)
-            T /= np.maximum(np.linalg.norm(T, axis=1, keepdims=True), 1e-12)
-            Nn = np.column_stack([-T[:, 1], T[:, 0]])
-            best = ch
-            z = None
-            for span in (g, 0.2 * g):  # the fold: lowest below the chord across the chain
-                off = np.linspace(-span, span, 11)
-                Q = best[:, None, :] + off[None, :, None] * Nn[:, None, :]
-                Dq = cut.drop(Q.reshape(-1, 2)).reshape(len(best), -1)
-                lin = Dq[:, :1] + (Dq[:, -1:] - Dq[:, :1]) * ((off + span) / (2 * span))[None, :]
-                j = np.argmin(np.where(np.isfinite(Dq - lin), Dq - lin, np.inf), axis=1)
-                best, z = Q[np.arange(len(best)), j], Dq[np.arange(len(best)), j]
-            cen = np.column_stack([best, z])
-            out.append(cen[np.isfinite(cen[:, 2])])
+            out.append(to_fold(cut, ch, (g, 0.2 * g)))
     return out
+
+
+def to_fold(cut, ch, spans):
+    """Centres of chain ``ch (k, 2+)`` (XY used) moved across the chain onto the fold of the
+    drop surface: for each span, the lowest of 11 drops below their chord across the chain."""
+    T = np.gradient(ch[:, :2], axis=0)
+    T /= np.maximum(np.linalg.norm(T, axis=1, keepdims=True), 1e-12)
+    Nn = np.column_stack([-T[:, 1], T[:, 0]])
+    best = ch[:, :2]
+    z = None
+    for span in spans:
+        off = np.linspace(-span, span, 11)
+        Q = best[:, None, :] + off[None, :, None] * Nn[:, None, :]
+        Dq = cut.drop(Q.reshape(-1, 2)).reshape(len(best), -1)
+        lin = Dq[:, :1] + (Dq[:, -1:] - Dq[:, :1]) * ((off + span) / (2 * span))[None, :]
+        j = np.argmin(np.where(np.isfinite(Dq - lin), Dq - lin, np.inf), axis=1)
+        best, z = Q[np.arange(len(best)), j], Dq[np.arange(len(best)), j]
+    cen = np.column_stack([best, z])
+    return cen[np.isfinite(cen[:, 2])]
+
+
+def kink_chains(cut, prog, r, kmin, link, spans=(0.1, 0.02)):
+    """Chains of the valley kinks of a program's centre polyline, moved onto the fold."""
+    P = prog.points + np.array([0.0, 0.0, r])
+    m = prog.motion
+    i = np.flatnonzero((m[1:-1] == 1) & (m[2:] == 1)) + 1  # points between two feed moves
+    a, b = P[i] - P[i - 1], P[i + 1] - P[i]
+    la, lb = np.linalg.norm(a, axis=1), np.linalg.norm(b, axis=1)
+    ok = (la > 1e-6) & (lb > 1e-6)
+    i, a, b, la, lb = i[ok], a[ok], b[ok], la[ok], lb[ok]
+    turn = np.arccos(np.clip(np.einsum("ij,ij->i", a, b) / (la * lb), -1.0, 1.0))
+    below = P[i, 2] < P[i - 1, 2] + la / (la + lb) * (P[i + 1, 2] - P[i - 1, 2]) - 1e-9  # a valley
+    K = P[i[below & (turn > kmin)]]
+    chains = [c for c in chain(K, link) if len(c) >= 3] if len(K) else []
+    print(f"  {len(K)} valley kinks above {kmin} rad of {len(i)} CL points, {len(chains)} chains of 3 or more")
+    return [to_fold(cut, c, spans) for c in chains]
 
 
 def append_passes(src: Path, dst: Path, centres, r, safe):
@@ -174,7 +207,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("mesh")
     ap.add_argument("program")
-    ap.add_argument("--mode", choices=("stepover", "best", "creases"), required=True)
+    ap.add_argument("--mode", choices=("stepover", "best", "creases", "kinks"), required=True)
     ap.add_argument("--pattern", default="contour", help="stepover mode: the pattern to plan")
     ap.add_argument("--factors", type=float, nargs="*", default=[0.7, 0.5, 0.35])
     ap.add_argument("--samples", type=int, default=1_000_000)
@@ -182,6 +215,8 @@ def main(argv=None) -> int:
     ap.add_argument("--link", type=float, default=0.3)
     ap.add_argument("--grid", type=float, default=0.1)
     ap.add_argument("--kink", type=float, default=0.4)
+    ap.add_argument("--kmin", type=float, default=0.08, help="kinks mode: least upward turn (rad)")
+    ap.add_argument("--settle", type=float, default=0.0, help="settle the extra passes to F h (0: off)")
     ap.add_argument("--h", type=float, default=0.01)
     ap.add_argument("--r", type=float, default=4.0)
     ap.add_argument("--e", type=float, default=0.01)
@@ -210,9 +245,14 @@ def main(argv=None) -> int:
     t = time.perf_counter()
     if args.mode == "best":
         chains = chain(best_centres(mesh, cut, r, h, args.samples, args.low), args.link)
+    elif args.mode == "kinks":
+        chains = kink_chains(cut, read_gcode(src), r, args.kmin, args.link)
     else:
         chains = crease_chains(mesh, cut, args.grid, args.kink)
-    passes = [cut.refine(c, e) for c in chains if len(c) >= 2]
+    chains = [c for c in chains if len(c) >= 2]
+    if args.settle > 0:
+        chains = [cut.settle(c, args.settle * h)[0] for c in chains]
+    passes = [cut.refine(c, e) for c in chains]
     wall = time.perf_counter() - t
     extra = sum(float(np.linalg.norm(np.diff(c, axis=0), axis=1).sum()) for c in passes)
     print(f"  {len(passes)} extra passes, {sum(len(c) for c in passes)} CL points, {extra / 1000:.2f} m of feed, "

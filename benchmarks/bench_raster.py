@@ -454,6 +454,8 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     global SPACING
     SPACING = args.spacing
+    if args.reverify and not args.keep:
+        ap.error("--reverify needs --keep DIR: the folder the programs were kept in")
     if args.reverify:
         old = json.loads(Path(args.reverify).read_text())
         res = [reverify(R, Path(args.keep), print) for R in old["results"]]

@@ -1,4 +1,4 @@
-"""What it would take to meet 1.05 h on a scan's reachable area: three prototypes, measured.
+"""What it would take to meet 1.05 h on a scan's reachable area: four prototypes, measured.
 
 Not part of the product. On igea the judged p99.9 of a conformill program is 1.52-1.61 h
 without the settle check (``plan --settle 0``, session 12) and 1.25-1.41 h with it
@@ -24,9 +24,11 @@ judged by ``verify`` on its own samples (400k, seed 0, limit 1.05 h, reach depth
     across the chain to where the drop height lies lowest below the chord (the fold).
 ``--mode kinks``
     the program plus passes along the valleys its own passes cross (session 20): every CL
-    point where the program's centre polyline turns upwards by more than ``--kmin`` rad
-    (a fold or a tight valley of the drop surface, crossed by a pass), chained greedily
-    across passes where they lie within ``--link`` mm, each chain moved onto the fold as in
+    point where the program's centre polyline bends by more than ``--kmin`` rad (the 3D
+    angle between its two feed moves) and lies below the chord of its neighbours (a fold or
+    a tight valley of the drop surface, crossed by a pass), chained greedily in XY where
+    they lie within ``--link`` mm (on a scan the passes lie closer than the points along
+    them, so the chains mostly run across passes), each chain moved onto the fold as in
     ``creases``; no extra drops to find them, but the program's own kinks are many.
 
 ``--settle F`` settles each extra pass (``BallCutter.settle`` with ``F h``) before it is
@@ -37,7 +39,7 @@ Usage::
     python benchmarks/bench_cleanup.py igea DIR/igea_contour_h0.01.nc --mode best --samples 1000000 --low 0.15
     python benchmarks/bench_cleanup.py igea DIR/igea_contour_h0.01.nc --mode creases --grid 0.1 --kink 0.4
     python benchmarks/bench_cleanup.py igea DIR/igea_contour_h0.01.nc --mode stepover --pattern contour
-    python benchmarks/bench_cleanup.py igea DIR/igea_contour_h0.01.nc --mode kinks --kmin 0.08 --settle 0.5
+    python benchmarks/bench_cleanup.py igea DIR/igea_contour_h0.01.nc --mode kinks --kmin 0.15 --link 0.5 --settle 0.5
 """
 
 from __future__ import annotations

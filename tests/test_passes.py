@@ -98,6 +98,35 @@ def test_batches_and_worker_give_the_same_program(recorded, batch, threaded):
     assert len(np.concatenate(lifts)) >= sum(len(c) for c in res.cc_paths)
 
 
+@pytest.mark.parametrize("link_max", [None, 1e-6])
+@pytest.mark.parametrize("threaded", [False, True])
+def test_progress_of_the_cutter(recorded, threaded, link_max):
+    """finish(progress) reports the share cut: in [0, 1], non-decreasing, last 1.0, with
+    every piece counted once (retracted links too); the program is the same without it."""
+    if threaded and not threads_can_overlap():
+        pytest.skip("numba's threading layer here does not allow two threads")
+    _, seen = recorded
+    args = list(seen["args"])
+    if link_max is not None:
+        args[4] = link_max
+    b = PassBuilder(seen["make_cutter"], *args[:5], threaded=threaded, batch=500,
+                    settle_tol=seen["kw"]["settle_tol"])
+    assert b.fraction_cut() == 1.0  # nothing handed over yet
+    for pc in seen["pieces"]:
+        b.add(pc)
+    got = []
+    passes, ids, _ = b.finish(progress=got.append)
+    f = np.array(got)
+    assert f[-1] == 1.0
+    if not threaded:  # one report per piece (the worker may be done before finish() looks)
+        assert f.size == len(seen["pieces"]) + 1 and f[0] < 1.0
+    assert np.all((f >= 0.0) & (f <= 1.0)) and np.all(np.diff(f) >= 0.0)
+    assert b._units_cut == b._units_added == sum(len(pc.curve.sample.xyz) for pc in seen["pieces"])
+    (plain, ids_plain, _), _ = _build(seen, False, 500, link_max=link_max)
+    assert ids == ids_plain and len(passes) == len(plain)
+    assert all(np.array_equal(a, c) for a, c in zip(passes, plain))
+
+
 def test_retracts_split_passes_the_same_way_in_batches(recorded):
     _, seen = recorded
     (whole, ids_w, _), bw = _build(seen, False, 10**9, link_max=1e-6)

@@ -65,6 +65,7 @@ class _Pass:
     def __init__(self, path_id: int):
         self.path_id = path_id
         self.cc, self.nn, self.pending = [], [], 0
+        self.units = 0  # dense samples of the pieces whose CC points are pending
         self.centres, self.lifts = [], []
         self.last = None  # last refined centre: the first point of the next batch's moves
         self.last_tri = -1  # the triangle it rests on (a hint for the cutter)
@@ -117,6 +118,10 @@ class PassBuilder:
         self._cancel = False
         self._thread = None
         self._held = []  # pieces handed over, when not threaded (cut in finish())
+        # progress of the cutter in dense samples of the pieces: handed over (caller's
+        # thread) and cut (the worker's, counted when a pass's batch is done)
+        self._units_added = 0
+        self._units_cut = 0
         self.threaded = bool(threaded)
         if threaded:
             import numba
@@ -129,28 +134,41 @@ class PassBuilder:
     # -- the caller's side ----------------------------------------------------------
     def add(self, piece) -> None:
         """Hand over the next piece (a :class:`conformill.patterns.pieces.Piece`)."""
+        self._units_added += len(piece.curve.sample.xyz)
         if self._thread is None:
             self._held.append(piece)
             return
         self._raise()
         self._queue.put(piece)
 
-    def finish(self):
+    def fraction_cut(self) -> float:
+        """Share of the pieces handed over so far whose CC points are cut, by their dense
+        samples (0 to 1; 1 when nothing was handed over)."""
+        return min(self._units_cut / self._units_added, 1.0) if self._units_added else 1.0
+
+    def finish(self, progress=None):
         """Cut what is left; returns ``(passes, pass_ids, lifts)``.
 
         ``passes`` are tool-tip polylines ``(k, 3)``; ``lifts`` the drop-cutter lifts of
-        the CC points (mm). Raises what the worker raised.
+        the CC points (mm). ``progress(fraction)``, if given, is called while the cutter
+        works (:meth:`fraction_cut`, non-decreasing, last 1.0). Raises what the worker
+        raised.
         """
+        say = progress or (lambda f: None)
         if self._thread is None:
             for piece in self._held:
                 self._take(piece)
+                say(self.fraction_cut())
             self._held = []
             self._close()
         else:
             self._queue.put(None)
-            self._thread.join()
+            while self._thread.is_alive():
+                say(self.fraction_cut())
+                self._thread.join(timeout=0.2)
             self._thread = None
             self._raise()
+        say(1.0)
         passes, ids, lifts = [], [], []
         for p in self._done:
             if not p.centres:
@@ -230,14 +248,17 @@ class PassBuilder:
             cur.cc.append(cc)
             cur.nn.append(nn)
             cur.pending += len(cc)
+            cur.units += len(X3)
         else:
             L = float(np.linalg.norm(np.diff(X3, axis=0), axis=1).sum())
             if L <= self.link_max:
                 cur.cc.append(cc[1:-1])
                 cur.nn.append(nn[1:-1])
                 cur.pending += len(cur.cc[-1])
+                cur.units += len(X3)
             else:
                 self.n_retracts_link += 1
+                self._units_cut += len(X3)  # nothing to cut: a retract
                 self.timings["forward"] += time.perf_counter() - t0
                 self._cut(cur)
                 self._done.append(cur)
@@ -255,6 +276,8 @@ class PassBuilder:
     def _cut(self, p: _Pass):
         """Drop-cutter and gouge-safe moves for the pending CC points of pass ``p``."""
         if not p.cc:
+            self._units_cut += p.units
+            p.units = 0
             return
         t0 = time.perf_counter()
         if self.cutter is None:
@@ -283,4 +306,6 @@ class PassBuilder:
             p.centres.append(centres)
             p.last = centres[-1]  # settle and refine keep the ends: tri[-1] is its contact
             p.last_tri = int(tri[-1])
+        self._units_cut += p.units
+        p.units = 0
         self.timings["cutter"] += time.perf_counter() - t0

@@ -359,9 +359,9 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
                 else:
                     domain = plan_spiral(planner, poly, delta, progress=prog, adaptive=adaptive,
                                          emit=builder.add)
-        say("cutter", 0.0)
+        say("cutter", builder.fraction_cut())
         t_wait = time.perf_counter()
-        passes, pass_ids, lifts = builder.finish()
+        passes, pass_ids, lifts = builder.finish(progress=lambda f: say("cutter", f))
         t_wait = time.perf_counter() - t_wait
         # forward and cutter: busy time (beside the pattern stage when threaded; then
         # cutter_wait is how long the plan waited for the cutter after the last path)

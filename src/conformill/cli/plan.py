@@ -104,7 +104,8 @@ def run(args) -> int:
     t_read = time.perf_counter() - t
     progress = StageProgress(enabled=not args.quiet)
     try:
-        result = plan(mesh, job, progress=progress)
+        with progress.logging():
+            result = plan(mesh, job, progress=progress)
     finally:
         progress.close()
     report = result.report

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+import logging
 import sys
 
 
@@ -19,6 +21,9 @@ class StageProgress:
     def __call__(self, stage: str, fraction: float) -> None:
         if not self.enabled:
             return
+        if stage == "done":  # the end of the plan, not a stage to draw
+            self.close()
+            return
         from tqdm import tqdm
 
         if stage != self.stage:
@@ -34,3 +39,12 @@ class StageProgress:
         if self.bar is not None:
             self.bar.close()
             self.bar = None
+
+    def logging(self):
+        """Context in which log lines are written above the bar (``tqdm.write``) instead of
+        into it; does nothing when the display is off."""
+        if not self.enabled:
+            return contextlib.nullcontext()
+        from tqdm.contrib.logging import logging_redirect_tqdm
+
+        return logging_redirect_tqdm(loggers=[logging.getLogger()])

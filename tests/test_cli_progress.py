@@ -1,0 +1,78 @@
+"""The progress display: quiet off a terminal, one bar per stage on one, log lines above it."""
+
+from __future__ import annotations
+
+import io
+import logging
+
+from conformill.cli import progress as progress_mod
+from conformill.cli.progress import StageProgress
+
+
+class _Tty(io.StringIO):
+    def isatty(self) -> bool:
+        return True
+
+
+def _tty(monkeypatch):
+    """stderr as a terminal. Set in the test itself: pytest's capture puts its own stderr
+    back between a fixture's setup and the test."""
+    out = _Tty()
+    monkeypatch.setattr(progress_mod.sys, "stderr", out)
+    return out
+
+
+def test_quiet_off_a_terminal(monkeypatch):
+    out = io.StringIO()
+    monkeypatch.setattr(progress_mod.sys, "stderr", out)
+    p = StageProgress()
+    assert not p.enabled
+    p("pattern", 0.5)
+    with p.logging():
+        logging.getLogger("conformill").warning("not redirected")
+    p.close()
+    assert out.getvalue() == ""
+
+
+def test_quiet_when_asked(monkeypatch):
+    tty = _tty(monkeypatch)
+    p = StageProgress(enabled=False)
+    p("pattern", 0.5)
+    p.close()
+    assert tty.getvalue() == ""
+
+
+def test_a_bar_per_stage_and_none_for_done(monkeypatch):
+    tty = _tty(monkeypatch)
+    p = StageProgress()
+    assert p.enabled
+    p("pattern", 0.25)
+    p("pattern", 0.75)
+    first = p.bar
+    p("cutter", 0.5)
+    assert p.bar is not first and p.stage == "cutter" and p.bar.n == 500
+    p("done", 1.0)  # the end of the plan: the bar goes, no new one
+    assert p.bar is None
+    text = tty.getvalue()
+    assert "pattern" in text and "cutter" in text and "done" not in text
+
+
+def test_log_lines_are_written_above_the_bar(monkeypatch):
+    tty = _tty(monkeypatch)
+    root = logging.getLogger()
+    handler = logging.StreamHandler(tty)  # what logging.basicConfig gives the CLI
+    handler.setFormatter(logging.Formatter("conformill: %(levelname)s: %(message)s"))
+    root.addHandler(handler)
+    try:
+        p = StageProgress()
+        p("pattern", 0.5)
+        with p.logging():
+            assert handler not in root.handlers  # swapped for tqdm.write while the bar is up
+            logging.getLogger("conformill").warning("a region the ball cannot reach")
+        assert handler in root.handlers
+        p.close()
+    finally:
+        root.removeHandler(handler)
+    lines = tty.getvalue().replace("\r", "\n").split("\n")
+    warn = [ln for ln in lines if "a region the ball cannot reach" in ln]
+    assert warn == ["conformill: WARNING: a region the ball cannot reach"]

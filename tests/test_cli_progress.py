@@ -76,3 +76,21 @@ def test_log_lines_are_written_above_the_bar(monkeypatch):
     lines = tty.getvalue().replace("\r", "\n").split("\n")
     warn = [ln for ln in lines if "a region the ball cannot reach" in ln]
     assert warn == ["conformill: WARNING: a region the ball cannot reach"]
+
+
+def test_the_plan_reports_its_stages_in_order():
+    """plan(progress=...) names each stage once, in pipeline order, with fractions in
+    [0, 1] that do not fall within a stage; the cutter's reaches 1 before 'done'."""
+    from conformill.mesh import synthetic
+    from conformill.pipeline import Job, plan
+
+    seen = []
+    part = synthetic.freeform_patch(spacing=2.0, jitter=0.3, seed=2)
+    plan(part, Job(pattern="contour", tool_radius=4.0, scallop=0.05, tolerance=0.01),
+         progress=lambda stage, f: seen.append((stage, f)))
+    stages = [s for i, (s, _) in enumerate(seen) if i == 0 or seen[i - 1][0] != s]
+    assert stages == ["parameterize", "frame", "pattern", "cutter", "done"]
+    for stage in stages:
+        f = [v for s, v in seen if s == stage]
+        assert all(0.0 <= v <= 1.0 for v in f) and all(b >= a for a, b in zip(f, f[1:]))
+    assert [v for s, v in seen if s == "cutter"][-1] == 1.0

@@ -308,7 +308,9 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
             q = quality(mesh.V, mesh.F, param.uv)
         if q.flipped:
             raise PlanningError(f"the parameterization has {q.flipped} flipped faces; try --weights mean_value")
+        say("parameterize", 1.0)
 
+        say("frame", 0.0)
         with timer("frame"):
             # the mesh the planner sees: the input, or the same surface split at its edge
             # midpoints (Job.fit); the cutter works on the input either way

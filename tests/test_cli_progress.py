@@ -6,7 +6,7 @@ import io
 import logging
 
 from conformill.cli import progress as progress_mod
-from conformill.cli.progress import StageProgress
+from conformill.cli.progress import StageProgress, log_above_bars
 
 
 class _Tty(io.StringIO):
@@ -52,7 +52,7 @@ def test_a_bar_per_stage_and_none_for_done(monkeypatch):
     p("cutter", 0.5)
     assert p.bar is not first and p.stage == "cutter" and p.bar.n == 500
     p("done", 1.0)  # the end of the plan: the bar goes, no new one
-    assert p.bar is None
+    assert p.bar is None and p.stage is None
     text = tty.getvalue()
     assert "pattern" in text and "cutter" in text and "done" not in text
 
@@ -94,3 +94,20 @@ def test_the_plan_reports_its_stages_in_order():
         f = [v for s, v in seen if s == stage]
         assert all(0.0 <= v <= 1.0 for v in f) and all(b >= a for a, b in zip(f, f[1:]))
     assert [v for s, v in seen if s == "cutter"][-1] == 1.0
+
+
+def test_no_redirect_without_a_console_handler(monkeypatch):
+    """A root logger that writes only to a file keeps its handlers: tqdm's redirect would
+    add a console handler of its own."""
+    tty = _tty(monkeypatch)
+    root = logging.getLogger()
+    saved = root.handlers[:]
+    to_file = logging.StreamHandler(io.StringIO())  # not stdout or stderr
+    root.handlers = [to_file]
+    try:
+        with log_above_bars(True):
+            assert root.handlers == [to_file]
+            logging.getLogger("conformill").warning("only to the file")
+    finally:
+        root.handlers = saved
+    assert "only to the file" in to_file.stream.getvalue() and tty.getvalue() == ""

@@ -127,6 +127,46 @@ def test_progress_of_the_cutter(recorded, threaded, link_max):
     assert all(np.array_equal(a, c) for a, c in zip(passes, plain))
 
 
+class _Gated:
+    """A cutter whose first CC batch waits for ``gate`` (at most 10 s)."""
+
+    def __init__(self, cutter, gate):
+        self._cutter, self._gate = cutter, gate
+
+    def __getattr__(self, name):
+        return getattr(self._cutter, name)
+
+    def cl_from_cc(self, *args, **kw):
+        self._gate.wait(10.0)
+        return self._cutter.cl_from_cc(*args, **kw)
+
+
+def test_progress_reported_while_the_worker_cuts(recorded):
+    """In the worker, finish() reports before the cutting is done: the worker's first batch
+    waits until the first report has been made, so a finish() that only joined the worker
+    would report nothing but the final 1.0 (after a 10 s wait)."""
+    if not threads_can_overlap():
+        pytest.skip("numba's threading layer here does not allow two threads")
+    import threading
+
+    _, seen = recorded
+    gate = threading.Event()
+    b = PassBuilder(lambda: _Gated(seen["make_cutter"](), gate), *seen["args"][:5], threaded=True, batch=500,
+                    settle_tol=seen["kw"]["settle_tol"])
+    for pc in seen["pieces"]:
+        b.add(pc)
+    got = []
+
+    def report(f):
+        got.append(f)
+        gate.set()
+
+    passes, ids, _ = b.finish(progress=report)
+    assert len(got) >= 2 and got[0] < 1.0 and got[-1] == 1.0
+    (plain, ids_plain, _), _ = _build(seen, False, 500)
+    assert ids == ids_plain and all(np.array_equal(a, c) for a, c in zip(passes, plain))
+
+
 def test_retracts_split_passes_the_same_way_in_batches(recorded):
     _, seen = recorded
     (whole, ids_w, _), bw = _build(seen, False, 10**9, link_max=1e-6)

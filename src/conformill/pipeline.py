@@ -344,6 +344,7 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
         planner = Planner(surface, params, seg_len, concave_cap=flat_ls if job.concave_steps == "flat" else None,
                           rise_tol=e_fwd, max_step=job.max_step)
 
+        say("frame", 1.0)
         with timer("pattern"):
             prog = (lambda f: say("pattern", f))
             adaptive = job.spacing in ("adaptive", "local")

@@ -5,6 +5,7 @@ from __future__ import annotations
 import sys
 import time
 
+from conformill.cli.progress import StageProgress, log_above_bars
 from conformill.errors import PlanningError
 
 
@@ -70,7 +71,6 @@ def _corners(text):
 
 
 def run(args) -> int:
-    from conformill.cli.progress import StageProgress
     from conformill.mesh.io import read_mesh
     from conformill.output.atomic import all_or_nothing, check_writable
     from conformill.output.gcode import write_gcode
@@ -188,8 +188,9 @@ def _verify(mesh, program, job, n_samples: int, quiet: bool, judge_h: float) -> 
 
         bar = tqdm(total=n_samples, desc="verify", unit="samples", unit_scale=True, leave=False, file=sys.stderr)
     try:
-        res = verify(mesh, program, job.tool_radius, n_samples=n_samples, scallop=SCALLOP_SLACK * judge_h,
-                     gouge=job.tolerance, progress=bar.update if bar is not None else None, judge="reachable")
+        with log_above_bars(bar is not None):
+            res = verify(mesh, program, job.tool_radius, n_samples=n_samples, scallop=SCALLOP_SLACK * judge_h,
+                         gouge=job.tolerance, progress=bar.update if bar is not None else None, judge="reachable")
     finally:
         if bar is not None:
             bar.close()

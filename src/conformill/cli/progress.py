@@ -23,6 +23,7 @@ class StageProgress:
             return
         if stage == "done":  # the end of the plan, not a stage to draw
             self.close()
+            self.stage = None
             return
         from tqdm import tqdm
 
@@ -41,10 +42,23 @@ class StageProgress:
             self.bar = None
 
     def logging(self):
-        """Context in which log lines are written above the bar (``tqdm.write``) instead of
-        into it; does nothing when the display is off."""
-        if not self.enabled:
-            return contextlib.nullcontext()
-        from tqdm.contrib.logging import logging_redirect_tqdm
+        """Context in which log lines are written above the bar instead of into it
+        (:func:`log_above_bars`); does nothing when the display is off."""
+        return log_above_bars(self.enabled)
 
-        return logging_redirect_tqdm(loggers=[logging.getLogger()])
+
+def log_above_bars(enabled: bool = True):
+    """Context in which the root logger's console lines go through ``tqdm.write`` (above
+    any bar, which is drawn again below them) instead of into a bar's line.
+
+    Nothing changes when ``enabled`` is false or when no root handler writes to the
+    console (stdout or stderr): tqdm's redirect would then add a console handler of its own.
+    """
+    root = logging.getLogger()
+    console = any(isinstance(h, logging.StreamHandler) and h.stream in (sys.stdout, sys.stderr)
+                  for h in root.handlers)
+    if not (enabled and console):
+        return contextlib.nullcontext()
+    from tqdm.contrib.logging import logging_redirect_tqdm
+
+    return logging_redirect_tqdm(loggers=[root])

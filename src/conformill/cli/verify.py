@@ -13,6 +13,7 @@ import sys
 import time
 from pathlib import Path
 
+from conformill.cli.progress import log_above_bars
 from conformill.errors import ConformillError
 
 
@@ -146,9 +147,10 @@ def run(args) -> int:
         bar = tqdm(total=args.samples, desc="simulating", unit="samples", unit_scale=True, leave=False,
                    file=sys.stderr)
     try:
-        res = verify(mesh, program, args.tool_radius, n_samples=args.samples, seed=args.seed,
-                     scallop=args.scallop, gouge=args.gouge, normals=args.normals, judge=args.judge,
-                     progress=bar.update if bar is not None else None, rest=args.rest)
+        with log_above_bars(bar is not None):
+            res = verify(mesh, program, args.tool_radius, n_samples=args.samples, seed=args.seed,
+                         scallop=args.scallop, gouge=args.gouge, normals=args.normals, judge=args.judge,
+                         progress=bar.update if bar is not None else None, rest=args.rest)
     finally:
         if bar is not None:
             bar.close()

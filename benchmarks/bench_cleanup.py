@@ -101,8 +101,16 @@ def chain(points, link):
     return out
 
 
-def best_centres(mesh, cut, r, h, n, low):
-    from conformill.verify.rest import rest_material, tangent_rest
+def best_centres(mesh, cut, r, h, n, low, grid=9, levels=4, max_tangent=np.inf, dump=None):
+    """Best ball centres of the planner-side samples whose rest is in (low h, h].
+
+    The search is :func:`conformill.verify.rest.rest_material` with one start, a first grid
+    of ``grid`` x ``grid`` centres over +-0.2 r and ``levels`` refining grids of the same
+    size (session 12: 9 and 4, about 405 drops per sample). Only samples whose tangent ball
+    leaves more than ``low`` h and at most ``max_tangent`` h are searched. ``dump``: an
+    ``.npz`` with the tangent rest, rest and centre of every searched sample.
+    """
+    from conformill.verify.rest import _SPANS, rest_material, tangent_rest
     from conformill.verify.samples import sample_surface
 
     S = sample_surface(mesh.V, mesh.F, n, seed=7)
@@ -110,11 +118,15 @@ def best_centres(mesh, cut, r, h, n, low):
     up = N[:, 2] > 0
     t = np.full(len(P), np.inf)
     t[up] = tangent_rest(cut, P[up], N[up])
-    cand = np.flatnonzero(up & (t > low * h))
+    cand = np.flatnonzero(up & (t > low * h) & (t <= max_tangent * h))
     # the planner side may search cheaply (one start): a missed better ball only costs a pass
-    rest, C = rest_material(cut, P[cand], N[cand], centres=True, starts=1, coarse=(0.2, 9))
+    rest, C = rest_material(cut, P[cand], N[cand], centres=True, starts=1, coarse=(0.2, grid),
+                            refine=(grid, _SPANS[:levels]))
+    if dump:
+        np.savez_compressed(dump, tangent=t[cand], rest=rest, centre=C)
     B = C[(rest > low * h) & (rest <= h) & np.isfinite(C[:, 2])]
-    print(f"  {n} samples, {cand.size} searched, {len(B)} with a rest in ({low} h, h]")
+    print(f"  {n} samples, {cand.size} searched ({grid} x {grid} grids, {levels} refining levels, tangent rest "
+          f"in ({low}, {max_tangent}] h), {len(B)} with a rest in ({low} h, h]")
     # thin to 0.03 mm
     tree = cKDTree(B[:, :2])
     taken = np.zeros(len(B), dtype=bool)
@@ -214,6 +226,11 @@ def main(argv=None) -> int:
     ap.add_argument("--factors", type=float, nargs="*", default=[0.7, 0.5, 0.35])
     ap.add_argument("--samples", type=int, default=1_000_000)
     ap.add_argument("--low", type=float, default=0.15)
+    ap.add_argument("--grid-n", type=int, default=9, help="best mode: size of the search grids")
+    ap.add_argument("--levels", type=int, default=4, help="best mode: refining levels (at most 4)")
+    ap.add_argument("--max-tangent", type=float, default=np.inf,
+                    help="best mode: search only samples whose tangent ball leaves at most this (x h)")
+    ap.add_argument("--dump", default=None, help="best mode: .npz of the searched samples")
     ap.add_argument("--link", type=float, default=0.3)
     ap.add_argument("--grid", type=float, default=0.1)
     ap.add_argument("--kink", type=float, default=0.4)
@@ -246,7 +263,8 @@ def main(argv=None) -> int:
     cut = BallCutter(mesh.V, mesh.F, r)
     t = time.perf_counter()
     if args.mode == "best":
-        chains = chain(best_centres(mesh, cut, r, h, args.samples, args.low), args.link)
+        chains = chain(best_centres(mesh, cut, r, h, args.samples, args.low, args.grid_n, args.levels,
+                                    args.max_tangent, args.dump), args.link)
     elif args.mode == "kinks":
         chains = kink_chains(cut, read_gcode(src), r, args.kmin, args.link)
     else:

@@ -234,7 +234,7 @@ def main(argv=None) -> int:
     ap.add_argument("--link", type=float, default=0.3)
     ap.add_argument("--grid", type=float, default=0.1)
     ap.add_argument("--kink", type=float, default=0.4)
-    ap.add_argument("--kmin", type=float, default=0.08, help="kinks mode: least upward turn (rad)")
+    ap.add_argument("--kmin", type=float, default=0.08, help="kinks mode: least bend (rad) of the centre polyline at a point below its neighbours' chord")
     ap.add_argument("--settle", type=float, default=0.0, help="settle the extra passes to F h (0: off)")
     ap.add_argument("--h", type=float, default=0.01)
     ap.add_argument("--r", type=float, default=4.0)

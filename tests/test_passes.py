@@ -53,12 +53,18 @@ def recorded():
     return res, seen
 
 
-def _build(seen, threaded, batch, link_max=None):
+def _builder(seen, threaded, batch, link_max=None, make_cutter=None):
+    """A PassBuilder with the recorded plan's settings (``link_max`` and the cutter replaced
+    where given), no piece handed over yet."""
     args = list(seen["args"])
     if link_max is not None:
         args[4] = link_max
-    b = PassBuilder(seen["make_cutter"], *args[:5], threaded=threaded, batch=batch,
-                    settle_tol=seen["kw"]["settle_tol"])
+    return PassBuilder(make_cutter or seen["make_cutter"], *args[:5], threaded=threaded, batch=batch,
+                       settle_tol=seen["kw"]["settle_tol"])
+
+
+def _build(seen, threaded, batch, link_max=None):
+    b = _builder(seen, threaded, batch, link_max)
     for pc in seen["pieces"]:
         b.add(pc)
     return b.finish(), b
@@ -106,11 +112,7 @@ def test_progress_of_the_cutter(recorded, threaded, link_max):
     if threaded and not threads_can_overlap():
         pytest.skip("numba's threading layer here does not allow two threads")
     _, seen = recorded
-    args = list(seen["args"])
-    if link_max is not None:
-        args[4] = link_max
-    b = PassBuilder(seen["make_cutter"], *args[:5], threaded=threaded, batch=500,
-                    settle_tol=seen["kw"]["settle_tol"])
+    b = _builder(seen, threaded, 500, link_max)
     assert b.fraction_cut() == 1.0  # nothing handed over yet
     for pc in seen["pieces"]:
         b.add(pc)
@@ -151,8 +153,7 @@ def test_progress_reported_while_the_worker_cuts(recorded):
 
     _, seen = recorded
     gate = threading.Event()
-    b = PassBuilder(lambda: _Gated(seen["make_cutter"](), gate), *seen["args"][:5], threaded=True, batch=500,
-                    settle_tol=seen["kw"]["settle_tol"])
+    b = _builder(seen, True, 500, make_cutter=lambda: _Gated(seen["make_cutter"](), gate))
     for pc in seen["pieces"]:
         b.add(pc)
     got = []

@@ -276,8 +276,6 @@ class PassBuilder:
     def _cut(self, p: _Pass):
         """Drop-cutter and gouge-safe moves for the pending CC points of pass ``p``."""
         if not p.cc:
-            self._units_cut += p.units
-            p.units = 0
             return
         t0 = time.perf_counter()
         if self.cutter is None:
@@ -285,6 +283,7 @@ class PassBuilder:
         cc = np.concatenate(p.cc)
         nn = np.concatenate(p.nn)
         p.cc, p.nn, p.pending = [], [], 0
+        units, p.units = p.units, 0  # counted as cut once this batch is done
         if len(cc):
             centres, lift, tri = self.cutter.cl_from_cc(cc, nn, contacts=True)  # finite, or it raises
             p.lifts.append(lift)
@@ -306,6 +305,5 @@ class PassBuilder:
             p.centres.append(centres)
             p.last = centres[-1]  # settle and refine keep the ends: tri[-1] is its contact
             p.last_tri = int(tri[-1])
-        self._units_cut += p.units
-        p.units = 0
+        self._units_cut += units
         self.timings["cutter"] += time.perf_counter() - t0

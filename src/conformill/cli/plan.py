@@ -5,7 +5,7 @@ from __future__ import annotations
 import sys
 import time
 
-from conformill.cli.progress import StageProgress, log_above_bars
+from conformill.cli.progress import StageProgress, sample_bar
 from conformill.errors import PlanningError
 
 
@@ -182,18 +182,9 @@ def _verify(mesh, program, job, n_samples: int, quiet: bool, judge_h: float) -> 
     """
     from conformill.verify.simulate import verify
 
-    bar = None
-    if not quiet and sys.stderr.isatty():
-        from tqdm import tqdm
-
-        bar = tqdm(total=n_samples, desc="verify", unit="samples", unit_scale=True, leave=False, file=sys.stderr)
-    try:
-        with log_above_bars(bar is not None):
-            res = verify(mesh, program, job.tool_radius, n_samples=n_samples, scallop=SCALLOP_SLACK * judge_h,
-                         gouge=job.tolerance, progress=bar.update if bar is not None else None, judge="reachable")
-    finally:
-        if bar is not None:
-            bar.close()
+    with sample_bar(n_samples, "verify", enabled=not quiet) as update:
+        res = verify(mesh, program, job.tool_radius, n_samples=n_samples, scallop=SCALLOP_SLACK * judge_h,
+                     gouge=job.tolerance, progress=update, judge="reachable")
     s = res.summary
     keep = ("samples", "interior_samples", "scallop", "scallop_mean", "uncut_fraction", "above_scallop_fraction",
             "gouge_max", "gouge_where", "gouge_line", "rapid_min_clearance", "rapid_min_line",

@@ -62,3 +62,20 @@ def log_above_bars(enabled: bool = True):
     from tqdm.contrib.logging import logging_redirect_tqdm
 
     return logging_redirect_tqdm(loggers=[root])
+
+
+@contextlib.contextmanager
+def sample_bar(total: int, desc: str, enabled: bool = True):
+    """A bar of ``total`` samples on a terminal, log lines written above it; yields its
+    ``update`` callable, or ``None`` when quiet or off a terminal."""
+    if not (enabled and sys.stderr.isatty()):
+        yield None
+        return
+    from tqdm import tqdm
+
+    bar = tqdm(total=total, desc=desc, unit="samples", unit_scale=True, leave=False, file=sys.stderr)
+    try:
+        with log_above_bars():
+            yield bar.update
+    finally:
+        bar.close()

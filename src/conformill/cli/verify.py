@@ -13,7 +13,7 @@ import sys
 import time
 from pathlib import Path
 
-from conformill.cli.progress import log_above_bars
+from conformill.cli.progress import sample_bar
 from conformill.errors import ConformillError
 
 
@@ -139,21 +139,11 @@ def run(args) -> int:
     t0 = time.perf_counter()
     mesh = read_mesh(args.mesh, scale=args.scale, validate=False)
     program = read_gcode(Path(args.program) if args.program != "-" else sys.stdin.read(), chord_tol=args.chord_tol)
-    bar = None
     quiet = getattr(args, "quiet", False)
-    if not quiet and sys.stderr.isatty():
-        from tqdm import tqdm
-
-        bar = tqdm(total=args.samples, desc="simulating", unit="samples", unit_scale=True, leave=False,
-                   file=sys.stderr)
-    try:
-        with log_above_bars(bar is not None):
-            res = verify(mesh, program, args.tool_radius, n_samples=args.samples, seed=args.seed,
-                         scallop=args.scallop, gouge=args.gouge, normals=args.normals, judge=args.judge,
-                         progress=bar.update if bar is not None else None, rest=args.rest)
-    finally:
-        if bar is not None:
-            bar.close()
+    with sample_bar(args.samples, "simulating", enabled=not quiet) as update:
+        res = verify(mesh, program, args.tool_radius, n_samples=args.samples, seed=args.seed,
+                     scallop=args.scallop, gouge=args.gouge, normals=args.normals, judge=args.judge,
+                     progress=update, rest=args.rest)
     seconds = time.perf_counter() - t0
     summary = dict(res.summary)
     summary.update(mesh=mesh.name, program=program.source, faces=mesh.n_faces, scale=args.scale, seconds=seconds)

@@ -11,6 +11,8 @@ length and the time for the knobs that densify the program:
 * ``local``: ``--spacing local`` (sparser paths that dent locally);
 * ``fit split``: ``Job.fit = "split"`` (``--fit split``): only the planner's curvature fit
   works on the split mesh below; the cutter stays on the input mesh;
+* ``pencil``: ``Job.pencil`` (``--pencil``): pencil passes through the best ball centres
+  after the pattern (:mod:`conformill.pencil`), at the default 30 or the given samples per mm^2;
 * ``fine``: the same job on the same surface split once more (every triangle into four at its
   edge midpoints, :func:`conformill.mesh.split.split_midpoints`; a planar split, so the surface and the
   drop-cutter's heights are the same): the per-vertex quadratic fit then works at half the
@@ -56,6 +58,9 @@ VARIANTS = {
     "fit split, settle 0.25": ({"fit": "split", "settle": 0.25}, 1.0, False),
     "fit split, settle 0.25, planned 0.8 h": ({"fit": "split", "settle": 0.25}, 0.8, False),
     "fit split, settle 0.25, planned 0.7 h": ({"fit": "split", "settle": 0.25}, 0.7, False),
+    "pencil": ({"pencil": True}, 1.0, False),
+    "pencil, density 20": ({"pencil": True, "pencil_density": 20.0}, 1.0, False),
+    "pencil, density 43": ({"pencil": True, "pencil_density": 43.0}, 1.0, False),
 }
 
 
@@ -103,26 +108,28 @@ def main(argv=None) -> int:
             path = folder / f"{mesh.name}_{args.pattern}_{name.replace(' ', '_').replace(',', '')}.nc"
             t0, c0 = time.perf_counter(), time.process_time()
             res = plan(split if fine else mesh, job)
-            write_gcode(path, res.toolpath, feed=1000.0, plunge_feed=1000.0 / 3)
+            st = write_gcode(path, res.toolpath, feed=1000.0, plunge_feed=1000.0 / 3)
             wall, cpu = time.perf_counter() - t0, time.process_time() - c0
             m = BR.measure(mesh, path, r, h, e, samples, reach, res.toolpath.safe_z)
             vr = m["verify_reach"]
             row = {"variant": name, "wall": wall, "cpu": cpu, "cl": res.report["paths"]["cl_points"],
                    "feed_m": m["feed_mm"] / 1000, "p999": vr["p999"] / h, "p99": vr["p99"] / h,
-                   "excused": vr["beyond_any_ball"], "gouge_um": 1000 * m["gouge_max"], "rs274": m["rs274"]}
+                   "excused": vr["beyond_any_ball"], "gouge_um": 1000 * m["gouge_max"], "rs274": m["rs274"],
+                   "passes": len(res.toolpath.passes), "minutes": st["machining_time_min"]}
             rows.append(row)
             print(f"  {name}: {wall:.2f} s wall, {cpu:.2f} s cpu, {row['cl']} CL points, {row['feed_m']:.1f} m; "
                   f"reachable p99.9 {row['p999']:.3f} h, p99 {row['p99']:.3f} h", flush=True)
     base = next((x for x in rows if x["variant"] == "default"), None)
     print()
     print("| variant | plan + G-code s (cpu s) | " + ("OCL time / this | " if ocl_s else "")
-          + "CL points | feed m (x default) | reachable p99.9 / h | p99 / h | excused | gouge um | rs274 |")
-    print("|---|---|" + ("---|" if ocl_s else "") + "---|---|---|---|---|---|---|")
+          + "CL points | passes | feed m (x default) | min at feed | reachable p99.9 / h | p99 / h | excused | "
+          "gouge um | rs274 |")
+    print("|---|---|" + ("---|" if ocl_s else "") + "---|---|---|---|---|---|---|---|---|")
     for x in rows:
         ratio = f"{ocl_s / x['wall']:.1f} | " if ocl_s else ""
         rel = f"{x['feed_m'] / base['feed_m']:.2f}" if base else "-"
-        print(f"| {x['variant']} | {x['wall']:.2f} ({x['cpu']:.2f}) | {ratio}{x['cl']} | "
-              f"{x['feed_m']:.1f} ({rel}) | {x['p999']:.3f} | {x['p99']:.3f} | "
+        print(f"| {x['variant']} | {x['wall']:.2f} ({x['cpu']:.2f}) | {ratio}{x['cl']} | {x['passes']} | "
+              f"{x['feed_m']:.1f} ({rel}) | {x['minutes']:.1f} | {x['p999']:.3f} | {x['p99']:.3f} | "
               f"{x['excused']} | {x['gouge_um']:.1f} | {x['rs274']} |")
     return 0
 

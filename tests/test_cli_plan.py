@@ -99,6 +99,8 @@ def test_plan_programs_run_in_linuxcnc(part, tmp_path, pattern):
     (["--tool-radius", "4", "--scallop", "0.1", "--verify", "--verify-samples", "0"], 3, "samples"),
     (["--tool-radius", "4", "--scallop", "0.1", "--verify", "--verify-scallop", "0"], 3, "verify-scallop"),
     (["--tool-radius", "4", "--scallop", "0.1", "--verify", "--verify-scallop", "nan"], 3, "verify-scallop"),
+    (["--tool-radius", "4", "--scallop", "0.1", "--pencil", "--pencil-density", "-5"], 3, "pencil-density"),
+    (["--tool-radius", "4", "--scallop", "0.1", "--pencil", "--pencil-density", "nan"], 3, "pencil-density"),
 ])
 def test_bad_values_exit_without_output(part, tmp_path, capsys, args, code, word):
     out = tmp_path / "p.nc"
@@ -143,3 +145,19 @@ def test_fit_option_reaches_the_report_and_the_header(part, tmp_path, capsys):
     assert json.loads(rep.read_text())["job"]["fit"] == "split"
     assert "fit: split" in out.read_text()
     _refused_choice(part, tmp_path, capsys, "--fit", "coarse")
+
+
+def test_pencil_option_reaches_the_report_the_header_and_the_summary(part, tmp_path, capsys):
+    out, rep = tmp_path / "pencil.nc", tmp_path / "pencil.json"
+    assert main(["plan", str(part), "--pattern", "contour", "--tool-radius", "4", "--scallop", "0.5",
+                 "--pencil", "--pencil-density", "2", "-o", str(out), "--report", str(rep)]) == 0
+    r = json.loads(rep.read_text())
+    assert r["job"]["pencil"] is True and r["job"]["pencil_density"] == 2.0
+    assert r["pencil"]["samples"] > 0 and "pencil" in r["timings_s"]
+    assert "(param pencil: samples per mm2 2)" in out.read_text()
+    assert "  pencil            " in capsys.readouterr().out
+    # without the option the header says nothing of it (the default program is unchanged)
+    plain = tmp_path / "plain.nc"
+    assert main(["plan", str(part), "--pattern", "contour", "--tool-radius", "4", "--scallop", "0.5",
+                 "-o", str(plain), "-q"]) == 0
+    assert "pencil" not in plain.read_text()

@@ -110,6 +110,8 @@ def test_adjacent_paths_never_farther_than_allowed():
         (dict(settle=-0.1), "settle"),
         (dict(settle=float("nan")), "settle"),
         (dict(fit="coarse"), "fit"),
+        (dict(pencil=True, pencil_density=0.0), "pencil-density"),
+        (dict(pencil=True, pencil_density=float("inf")), "pencil-density"),
     ],
 )
 def test_bad_job_values_are_refused(kw, word):

@@ -934,6 +934,22 @@ class BallCutter:
                           gx0, gy0, cell, ncx, ncy, self._cstart, self._ctri, self._czmax, self._EB, self._CP,
                           self._maxwin, np.ascontiguousarray(floor, dtype=np.float64), wa, wb, bool(first))
 
+    def _kernel_args(self) -> tuple:
+        """The index as the compiled kernels take it (after ``r``): for other stages' kernels
+        that call :func:`_drop_point` (:mod:`conformill.pencil`)."""
+        gx0, gy0, cell, ncx, ncy = self._grid
+        return (self._T, self._B, gx0, gy0, cell, ncx, ncy, self._cstart, self._ctri, self._czmax, self._EB,
+                self._CP, self._maxwin)
+
+    def _tri_index(self, faces) -> np.ndarray:
+        """The kernels' triangle index of input faces ``faces`` (the index is spatially reordered)."""
+        faces = np.asarray(faces, dtype=np.int64)
+        if faces.size and (faces.min() < 0 or faces.max() >= len(self._order)):
+            raise PlanningError(f"cutter: face index out of range [0, {len(self._order)})")
+        inv = np.empty_like(self._order)
+        inv[self._order] = np.arange(len(self._order))
+        return np.ascontiguousarray(inv[faces], dtype=np.int64)
+
     # ------------------------------------------------------------------ CC -> CL
     def cl_from_cc(self, cc, n, contacts: bool = False):
         """Ball centres for cutter-contact points, lifted so that the ball cannot gouge.

@@ -89,6 +89,15 @@ class Job:
         the reachability report flags concave regions of radius up to about 2 r. The cutter
         works on the input mesh either way; the report's concave-region face counts and
         the frame's warnings then refer to the split mesh.
+    pencil : bool
+        After the pattern, cut pencil passes through the best ball positions where the
+        part is tighter than the ball (:mod:`conformill.pencil`): the centres of surface
+        samples whose least possible material lies in (0.15 h, h], chained, settled and
+        refined. On igea (contour, h = 0.01) it takes the reachable p99.9 from 1.256 h to
+        1.02-1.04 h for about 8 % more feed (see README, "Pencil passes"), at a cost
+        proportional to the area times ``pencil_density``.
+    pencil_density : float
+        Samples per mm^2 the pencil stage searches (30: 0.18 mm apart).
     """
 
     pattern: str = "spiral"
@@ -109,6 +118,8 @@ class Job:
     spacing: str = "adaptive"
     settle: float = 0.5
     fit: str = "mesh"
+    pencil: bool = False
+    pencil_density: float = 30.0
 
 
 class _Timer:
@@ -145,6 +156,8 @@ def check_job(job: Job) -> None:
         raise PlanningError(f"spacing must be 'adaptive', 'paper' or 'local', got {job.spacing!r}")
     if job.fit not in ("mesh", "split"):
         raise PlanningError(f"fit must be 'mesh' or 'split', got {job.fit!r}")
+    if not (np.isfinite(job.pencil_density) and job.pencil_density > 0):
+        raise PlanningError(f"pencil-density must be a positive number, got {job.pencil_density}")
 
 
 def face_normals(V: np.ndarray, F: np.ndarray):
@@ -373,6 +386,19 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
             timer.t["cutter_wait"] = t_wait
         cc_paths, fwd_steps, n_retracts_link = builder.cc_paths, builder.fwd_steps, builder.n_retracts_link
         n_settled, n_unsettled = builder.n_settled, builder.n_settle_unresolved
+        pencil = None
+        if job.pencil:
+            from conformill.pencil import pencil_passes
+
+            say("pencil", 0.0)
+            with timer("pencil"):
+                cutter = builder.cutter if builder.cutter is not None else BallCutter(mesh.V, mesh.F, r)
+                start = passes[-1][-1, :2] if passes else mesh.V[:, :2].mean(axis=0)
+                pencil = pencil_passes(cutter, mesh.V, mesh.F, h, e, density=job.pencil_density,
+                                       settle_tol=job.settle * h, link_max=link_max, start_xy=start,
+                                       progress=lambda f: say("pencil", f))
+                passes = passes + [cutter.tip(p) for p in pencil.passes]
+                pass_ids = pass_ids + [-1] * len(pencil.passes)
     toolpath = ToolPath(passes=passes, safe_z=safe_z, pass_ids=pass_ids)
 
     # -- figures -----------------------------------------------------------------
@@ -393,7 +419,7 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
                 "weights": job.weights, "max_step": job.max_step, "link_max": link_max,
                 "forward_chord_tolerance": e_fwd, "forward_chord_tolerance_convex": e_cvx,
                 "concave_steps": job.concave_steps, "spacing": job.spacing, "settle": job.settle,
-                "fit": job.fit},
+                "fit": job.fit, "pencil": job.pencil, "pencil_density": job.pencil_density},
         "orientation": orient_info,
         "parameterization": {"boundary": param.kind, "domain": param.domain, "corners": param.corners,
                              "solver": param.solver, "residual": param.residual, "fallbacks": param.fallbacks,
@@ -417,6 +443,7 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
         "cutter": {"lift_mm": _stats(lift_all), "settled_points": n_settled,
                    "settle_unresolved_moves": n_unsettled,
                    "lift_over_tolerance_share": float(np.mean(lift_all > e)) if lift_all.size else 0.0},
+        "pencil": pencil.stats if pencil is not None else None,
         "reachability": {"undercut_share": undercut_share,
                          "concave_below_tool_radius_share": unreach_share, "concave_regions": regions},
         "timings_s": timer.t,

@@ -158,7 +158,8 @@ class ToolPath:
         Each pass is a polyline cut at feed (tool tip, mm). Between passes the tool
         retracts to ``safe_z`` with rapids.
     pass_ids : list of int
-        For each pass, the index of the planned path(s) it starts with (for colouring).
+        For each pass, the index of the planned path(s) it starts with (for colouring);
+        -1 for a pencil pass (:mod:`conformill.pencil`).
     safe_z : float
     """
 

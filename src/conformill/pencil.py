@@ -122,7 +122,7 @@ def _model_search(px, py, pz, nx, ny, nz, sx, sy, r, r2, T, W, nw, spans, G):
 
 @njit(cache=True, nogil=True, parallel=True)
 def _best_many(P, N, face, r, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, CP, maxwin,
-               spans, G, low, give_up):
+               spans, G, low, give_up, blocks):
     """Per sample: best centre (x, y, z), its rest, and how the search ended.
 
     ``state``: 0 the tangent ball leaves at most ``low`` (no search), 1 searched (exact
@@ -133,7 +133,8 @@ def _best_many(P, N, face, r, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czma
     out = np.empty((k, 4))
     state = np.empty(k, dtype=np.int8)
     r2 = r * r
-    for ch in prange((k + _CHUNK - 1) // _CHUNK):
+    for b in prange(len(blocks)):
+        ch = blocks[b]
         cid = np.empty(maxwin, dtype=np.int64)
         cbound = np.empty(maxwin, dtype=np.float64)
         W = np.empty(_MAX_W, dtype=np.int64)
@@ -221,8 +222,13 @@ def best_centres(cutter, P, N, faces, low: float = 0.0, give_up: float = np.inf)
     tri = cutter._tri_index(np.asarray(faces, dtype=np.int64))
     if len(P) == 0:
         return np.zeros((0, 3)), np.zeros(0), np.zeros(0, dtype=np.int8)
+    # the blocks of samples in a shuffled order: prange hands each thread one contiguous
+    # range, and the work gathers where the part is tight (a fixed seed: the rows do not
+    # depend on the order anyway)
+    blocks = np.random.default_rng(0).permutation((len(P) + _CHUNK - 1) // _CHUNK)
     out, state = _best_many(P, N, tri, cutter.radius, *cutter._kernel_args(),
-                            np.asarray(_SPANS, dtype=np.float64) * cutter.radius, _GRID, float(low), float(give_up))
+                            np.asarray(_SPANS, dtype=np.float64) * cutter.radius, _GRID, float(low), float(give_up),
+                            blocks)
     return out[:, :3], out[:, 3], state
 
 

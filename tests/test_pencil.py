@@ -134,6 +134,23 @@ class TestPencilPasses:
         # every move is on the crease: the drop surface along it is flat, nothing to refine
         np.testing.assert_allclose(cut.drop(mid[:, :2]), mid[:, 2], atol=1e-9)
 
+    def test_the_band_of_the_rest(self):
+        # on the groove the best ball is the wedged one, which leaves r (1 / cos a - 1) =
+        # 0.393 h at the crease along +Z, and at most 1 / cos(a) of that along the samples'
+        # normals (interpolated: between +Z on the crease and the walls' normals), away from
+        # the groove's ends (there the ball can also sit past the end)
+        m = syn.v_groove(a_deg=8.0, half=12.0, step=0.25)
+        cut = BallCutter(m.V, m.F, R)
+        top = R * (1 / np.cos(A) - 1)
+        P, N, faces = surface_samples(m.V, m.F, 30.0)
+        inner = np.abs(P[:, 1]) < 12.0 - R
+        C, rest, state = best_centres(cut, P[inner], N[inner], faces[inner], low=0.015, give_up=0.105)
+        s = state == 1
+        assert s.sum() > 100 and rest[s].max() <= top / np.cos(A) and rest[s].max() > 0.98 * top
+        # the band: none when it is empty, some when it holds the crease's rest
+        assert pencil_passes(cut, m.V, m.F, 0.1, 0.01, low=0.15, high=0.15).stats["centres"] == 0
+        assert pencil_passes(cut, m.V, m.F, 0.1, 0.01, low=0.9 * top / 0.1).stats["centres"] > 0
+
     def test_bad_values(self):
         m = syn.plane(size=10.0, spacing=2.0)
         cut = BallCutter(m.V, m.F, R)
@@ -159,9 +176,10 @@ class TestChains:
         a = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 1.0]])
         b = np.array([[5.0, 0.0, 1.0], [2.0, 0.0, 1.0]])  # its near end is its last point
         c = np.array([[50.0, 0.0, 1.0], [51.0, 0.0, 1.0]])
-        passes = order_and_link([c, b, a], start_xy=(-1.0, 0.0), link_max=8.0)
+        lone = np.array([[8.0, 0.0, 1.0]])  # a single centre: a point of the linked pass
+        passes = order_and_link([c, lone, b, a], start_xy=(-1.0, 0.0), link_max=8.0)
         assert len(passes) == 2
-        np.testing.assert_array_equal(passes[0][:, 0], [0.0, 1.0, 2.0, 5.0])
+        np.testing.assert_array_equal(passes[0][:, 0], [0.0, 1.0, 2.0, 5.0, 8.0])
         np.testing.assert_array_equal(passes[1][:, 0], [50.0, 51.0])
 
 

@@ -25,15 +25,21 @@ true drop at the model's best centre, with the model's height as floor, tells wh
 triangle of the part rises above the model there; if so it joins the working set and the
 model is searched again (from the best centre, without the coarse grid), else the centre
 is on ``D`` and its value is exact. Since ``D_W <= D`` a lower ball is never missed for
-want of a triangle, only for want of grid resolution, as in the full search. On igea the
-working set settles after about two rounds, and the stage finds the same centres as
-session 12's search with true drops (97 % of the useful samples in common, median centre
-distance 0 um) at about 1/10 of its cost (see README, "Pencil passes").
+want of a triangle, only for want of grid resolution, as in the full search; and since the
+model only rises as triangles join, a sample whose model already leaves more than 1.05 h
+is given up (no pass for it). On igea (r = 4, h = 0.01) the working set settles after one
+or two rounds; with 1M samples the stage found 60331 centres with a rest in (0.15 h, h]
+against the 60679 of session 12's search with true drops (9 x 9 grids, about 405 drops
+per sample), and the passes through them leave the same 1.024 h, for about 1/30 of that
+search's time (10.5 s against 287-367 s; session 21, measured with this search as a
+prototype before it moved here; README "Pencil passes").
 
-The samples are drawn per unit area (``density``): the extra passes need them dense,
-since each centre found is a point of a pass and the passes join centres that lie within
-``link`` of each other (on igea 1M samples, 43 per mm^2, leave 1.024 h at p99.9 with the
-passes; 500k leave 1.043-1.053 h).
+The samples are drawn per unit area (``density``), with vertex normals interpolated (as
+``verify`` judges). The passes need them dense: each centre found is a point of a pass,
+and the passes join centres that lie within ``link`` of each other. On igea's default
+contour 20 / 30 / 43 samples per mm^2 leave 1.031 / 1.020 / 1.010 h at p99.9 for 13.3 /
+15.4 / 17.8 m more feed, the stage taking about 6 / 8 / 10 s on 2 cores (before the
+blocks were shuffled between the threads, which took the search from 6.8 to 5.3 s at 30).
 """
 
 from __future__ import annotations
@@ -406,8 +412,8 @@ class PencilResult:
     stats: dict = field(default_factory=dict)
 
 
-def pencil_passes(cutter, V, F, h: float, tol: float, *, density: float = 43.0, low: float = 0.15,
-                  settle_tol: float = 0.0, link_max: float = 8.0, start_xy=(0.0, 0.0), seed: int = 0,
+def pencil_passes(cutter, V, F, h: float, tol: float, *, density: float = 30.0, low: float = 0.15,
+                  high: float = 1.0, min_chain: int = 1, settle_tol: float = 0.0, link_max: float = 8.0, start_xy=(0.0, 0.0), seed: int = 0,
                   progress=None) -> PencilResult:
     """Pencil passes through the best ball centres whose rest lies in ``(low h, h]``.
 
@@ -423,9 +429,11 @@ def pencil_passes(cutter, V, F, h: float, tol: float, *, density: float = 43.0, 
         Chord tolerance ``e``: no centre move cuts more than ``e / 2`` into the part
         (:meth:`conformill.cutter.BallCutter.refine`).
     density : float
-        Samples per mm^2 of surface (default 43: 1M on igea).
-    low : float
-        Samples whose tangent ball leaves at most ``low h`` need no pass.
+        Samples per mm^2 of surface (default 30: 0.18 mm apart, 695k on igea).
+    low, high : float
+        The band of the rest (x h) whose centres make passes: samples whose tangent ball
+        leaves at most ``low h`` need no pass, those whose best ball leaves more than
+        ``high h`` get none.
     settle_tol : float
         Each chain is settled into the drop surface's valleys to this float (mm; 0: not).
     link_max : float
@@ -460,9 +468,9 @@ def pencil_passes(cutter, V, F, h: float, tol: float, *, density: float = 43.0, 
     step = max(1, -(-k // 20))
     for a in range(0, k, step):
         C[a:a + step], rest[a:a + step], state[a:a + step] = best_centres(
-            cutter, P[a:a + step], N[a:a + step], faces[a:a + step], low=low * h, give_up=_GIVE_UP * h)
+            cutter, P[a:a + step], N[a:a + step], faces[a:a + step], low=low * h, give_up=max(_GIVE_UP, high) * h)
         say(0.02 + 0.83 * min(a + step, k) / max(k, 1))
-    useful = (state == 1) & (rest > low * h) & (rest <= h) & np.isfinite(C[:, 2])
+    useful = (state == 1) & (rest > low * h) & (rest <= high * h) & np.isfinite(C[:, 2])
     B = C[useful]
     spacing = 1.0 / math.sqrt(density)
     # thin to a fifth of the sample spacing, chain within 3.3 spacings (0.03 / 0.5 mm on
@@ -470,22 +478,25 @@ def pencil_passes(cutter, V, F, h: float, tol: float, *, density: float = 43.0, 
     kept = _thin(np.ascontiguousarray(B[:, :2]), np.argsort(B[:, 0], kind="stable"), 0.2 * spacing) \
         if len(B) else np.zeros(0, dtype=np.int64)
     B = B[kept]
-    chains = [B[c] for c in chain_points(B[:, :2], 3.3 * spacing) if len(c) >= 2]
+    chains = [B[c] for c in chain_points(B[:, :2], 3.3 * spacing) if len(c) >= min_chain]
     n_settled = 0
     if settle_tol > 0:
         settled = []
         for c in chains:
-            s, n_in, _ = cutter.settle(c, settle_tol)
-            settled.append(s)
-            n_settled += n_in
+            if len(c) >= 2:
+                c, n_in, _ = cutter.settle(c, settle_tol)
+                n_settled += n_in
+            settled.append(c)
         chains = settled
     say(0.9)
-    passes = [cutter.refine(p, tol) for p in order_and_link(chains, start_xy, link_max)]
+    # a lone centre (min_chain 1) joins its neighbours through the links; alone it is no move
+    passes = [cutter.refine(p, tol) for p in order_and_link(chains, start_xy, link_max) if len(p) >= 2]
     say(1.0)
     feed = float(sum(np.linalg.norm(np.diff(p, axis=0), axis=1).sum() for p in passes))
     stats = {"samples": int(k), "searched": int(np.count_nonzero(state > 0)), "centres": int(useful.sum()),
              "thinned": int(len(B)), "chains": len(chains), "passes": len(passes),
              "cl_points": int(sum(len(p) for p in passes)), "feed_mm": feed,
              "given_up": int(np.count_nonzero(state == 2)), "working_set_full": int(np.count_nonzero(state == 3)),
-             "settled_points": int(n_settled), "density_per_mm2": float(density), "low": float(low)}
+             "settled_points": int(n_settled), "density_per_mm2": float(density), "low": float(low),
+             "high": float(high)}
     return PencilResult(passes=passes, stats=stats)

@@ -147,17 +147,49 @@ class TestPencilPasses:
         C, rest, state = best_centres(cut, P[inner], N[inner], faces[inner], low=0.015, give_up=0.105)
         s = state == 1
         assert s.sum() > 100 and rest[s].max() <= top / np.cos(A) and rest[s].max() > 0.98 * top
-        # the band: none when it is empty, some when it holds the crease's rest
-        assert pencil_passes(cut, m.V, m.F, 0.1, 0.01, low=0.15, high=0.15).stats["centres"] == 0
+        # the band: centres when it holds the crease's rest; starting above it, none but at
+        # the groove's ends (a sample or two, where the ball can sit past the end)
         assert pencil_passes(cut, m.V, m.F, 0.1, 0.01, low=0.9 * top / 0.1).stats["centres"] > 0
+        assert pencil_passes(cut, m.V, m.F, 0.1, 0.01, low=1.1 * top / 0.1, high=2.0).stats["centres"] <= 2
+
+    def test_same_passes_whatever_the_threads(self):
+        # every sample's search is its own: the blocks' order and the thread count change nothing
+        import numba
+
+        m = syn.v_groove(a_deg=8.0, half=12.0, step=0.25)
+        cut = BallCutter(m.V, m.F, R)
+        n = numba.get_num_threads()
+        try:
+            out = []
+            for t in sorted({1, n}):
+                numba.set_num_threads(t)
+                out.append(pencil_passes(cut, m.V, m.F, 0.1, 0.01, settle_tol=0.05))
+        finally:
+            numba.set_num_threads(n)
+        assert out[0].stats == out[-1].stats
+        for a, b in zip(out[0].passes, out[-1].passes):
+            np.testing.assert_array_equal(a, b)
 
     def test_bad_values(self):
         m = syn.plane(size=10.0, spacing=2.0)
         cut = BallCutter(m.V, m.F, R)
-        for kw, word in ((dict(h=0.0), "scallop"), (dict(tol=-1.0), "tolerance"), (dict(density=0.0), "density")):
+        for kw, word in ((dict(h=0.0), "scallop"), (dict(tol=-1.0), "tolerance"), (dict(density=0.0), "density"),
+                         (dict(low=0.5, high=0.5), "band"), (dict(low=-0.1), "band"), (dict(high=np.nan), "band"),
+                         (dict(min_chain=0), "min_chain"), (dict(link_max=0.0), "link")):
             args = {**dict(h=0.1, tol=0.01, density=1.0), **kw}
             with pytest.raises(PlanningError, match=word):
-                pencil_passes(cut, m.V, m.F, args["h"], args["tol"], density=args["density"])
+                pencil_passes(cut, m.V, m.F, args.pop("h"), args.pop("tol"), **args)
+
+    def test_density_is_capped_on_a_large_part(self, caplog, monkeypatch):
+        import conformill.pencil as pencil
+
+        monkeypatch.setattr(pencil, "_MAX_SAMPLES", 5000)
+        m = syn.plane(size=40.0, spacing=4.0)
+        cut = BallCutter(m.V, m.F, R)
+        with caplog.at_level("WARNING"):
+            res = pencil_passes(cut, m.V, m.F, 0.1, 0.01, density=30.0)
+        assert res.stats["samples"] <= 5000 and res.stats["density_per_mm2"] == pytest.approx(5000 / 1600.0)
+        assert "samples per mm^2" in caplog.text
 
 
 class TestChains:

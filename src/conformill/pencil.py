@@ -20,14 +20,16 @@ few triangles only (``D_W <= D``, cheap to evaluate), starting from the sample's
 triangle and the contact of the tangent ball (the ball touching ``p`` along its normal,
 dropped). The best centre of the model is searched on grids of 7 x 7 centres, over
 +-0.2 r around the tangent centre, then +-r/20, +-r/80, +-r/320 and +-r/1280 around the
-best one (the search of :func:`conformill.verify.rest.rest_material` with one start). One
+best one (the shape of :func:`conformill.verify.rest.rest_material`'s search with one start,
+on smaller grids: that one starts from 25 x 25 centres over +-0.4 r and refines on 9 x 9). One
 true drop at the model's best centre, with the model's height as floor, tells whether a
 triangle of the part rises above the model there; if so it joins the working set and the
 model is searched again (from the best centre, without the coarse grid), else the centre
-is on ``D`` and its value is exact. Since ``D_W <= D`` a lower ball is never missed for
-want of a triangle, only for want of grid resolution, as in the full search; and since the
-model only rises as triangles join, a sample whose model already leaves more than 1.05 h
-is given up (no pass for it). On igea (r = 4, h = 0.01) the working set settles after one
+is on ``D`` and its value is exact. Since ``D_W <= D`` point by point, a lower ball is not
+missed for want of a triangle, only for want of grid resolution, as in the full search. A
+sample whose model search already ends above 1.05 h is given up (no pass for it): the
+model only rises as triangles join, so its minimum over the same grids only rises too; a
+better ball off those grids can be missed there, as anywhere in a grid search. On igea (r = 4, h = 0.01) the working set settles after one
 or two rounds; with 1M samples the stage found 60331 centres with a rest in (0.15 h, h]
 against the 60679 of session 12's search with true drops (9 x 9 grids, about 405 drops
 per sample), and the passes through them leave the same 1.024 h, for about 1/30 of that
@@ -36,14 +38,16 @@ prototype before it moved here; README "Pencil passes").
 
 The samples are drawn per unit area (``density``), with vertex normals interpolated (as
 ``verify`` judges). The passes need them dense: each centre found is a point of a pass,
-and the passes join centres that lie within ``link`` of each other. On igea's default
-contour 20 / 30 / 43 samples per mm^2 leave 1.031 / 1.020 / 1.010 h at p99.9 for 13.3 /
-15.4 / 17.8 m more feed, the stage taking about 6 / 8 / 10 s on 2 cores (before the
-blocks were shuffled between the threads, which took the search from 6.8 to 5.3 s at 30).
+and the passes join centres that lie within 3.3 sample spacings of each other. On igea's
+default contour (session 21's final code) 20 / 30 samples per mm^2 leave 1.026 / 1.018 h at
+p99.9 for 14.7 / 16.6 m more feed (9 %), the stage taking 6-8 s on 2 cores; earlier, before
+lone centres were kept, 43 per mm^2 left 1.010 h. Samples whose rounds ran out (state 3,
+:func:`best_centres`) give no pass.
 """
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass, field
 
@@ -54,6 +58,8 @@ from conformill.cutter import _drop_point, _tri_drop
 from conformill.errors import PlanningError
 
 __all__ = ["PencilResult", "best_centres", "pencil_passes", "surface_samples"]
+
+log = logging.getLogger(__name__)
 
 #: Half-widths (units of r) of the search grids: the coarse one around the tangent
 #: centre, then the refining ones around the best centre so far.
@@ -68,6 +74,9 @@ _MAX_ROUNDS = 24
 _GIVE_UP = 1.05
 #: Samples per thread task (consecutive samples lie close: better cache use).
 _CHUNK = 256
+#: Most samples the stage draws (about 0.2 kB each while it runs): a larger part gets a
+#: lower density, with a warning.
+_MAX_SAMPLES = 4_000_000
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -132,7 +141,8 @@ def _best_many(P, N, face, r, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czma
     """Per sample: best centre (x, y, z), its rest, and how the search ended.
 
     ``state``: 0 the tangent ball leaves at most ``low`` (no search), 1 searched (exact
-    centre on D), 2 given up (model rest above ``give_up`` after a round), 3 working set full (the
+    centre on D), 2 given up (model rest above ``give_up`` after a round), 3 rounds used up or
+    working set full (with 24 rounds and room for 32 triangles only the rounds can run out; the
     centre is dropped onto D, its value exact but maybe not the best).
     """
     k = P.shape[0]
@@ -220,8 +230,8 @@ def best_centres(cutter, P, N, faces, low: float = 0.0, give_up: float = np.inf)
     rest : (k,) float64
         Material it leaves at the sample along the normal (mm).
     state : (k,) int8
-        0 not searched (tangent ball within ``low``), 1 searched, 2 given up, 3 working set
-        full (centre on D, maybe not the best).
+        0 not searched (tangent ball within ``low``), 1 searched, 2 given up, 3 rounds used up
+        (the centre dropped onto D: its value exact, maybe not the best).
     """
     P = np.ascontiguousarray(P, dtype=np.float64)
     N = np.ascontiguousarray(N, dtype=np.float64)
@@ -240,6 +250,14 @@ def best_centres(cutter, P, N, faces, low: float = 0.0, give_up: float = np.inf)
 
 def surface_samples(V, F, density: float, seed: int = 0):
     """Area-uniform samples with vertex normals interpolated, facing the tool (``n_z > 0``).
+
+    Parameters
+    ----------
+    V : (n, 3) float64
+    F : (m, 3) int64
+    density : float
+        Samples per mm^2 (``round(density * area)`` are drawn; those facing down are dropped).
+    seed : int
 
     Returns
     -------
@@ -267,7 +285,7 @@ def surface_samples(V, F, density: float, seed: int = 0):
     ok = ln > 0
     N[ok] /= ln[ok, None]
     up = ok & (N[:, 2] > 0)
-    # in cell order (1 mm): neighbouring samples share the cutter's warm start and cache
+    # in cell order (1 mm): consecutive samples touch the same triangles (cache)
     key = np.lexsort((np.floor(P[:, 0]), np.floor(P[:, 1])))
     keep = key[up[key]]
     return P[keep], N[keep], f[keep]
@@ -344,11 +362,23 @@ def _chains(nbr, dist, starts, link):
 
 
 def chain_points(xy, link: float, k: int = 16):
-    """Greedy nearest-neighbour chains of points ``xy (n, 2)`` with links at most ``link``.
+    """Greedy nearest-neighbour chains of points with links at most ``link``.
 
     Each chain starts at the free point with the fewest neighbours within ``link`` (an end,
     as far as one can tell) and grows at both ends by the nearest free point within
-    ``link``. Returns a list of index arrays, in chain order.
+    ``link`` among its ``k`` nearest (a chain can end early in a dense blob; the passes
+    join such pieces again, :func:`order_and_link`).
+
+    Parameters
+    ----------
+    xy : (n, 2) float64
+    link : float
+    k : int
+
+    Returns
+    -------
+    list of (k_i,) int64
+        Indices into ``xy``, in chain order; every point in exactly one chain.
     """
     from scipy.spatial import cKDTree
 
@@ -368,8 +398,20 @@ def order_and_link(chains, start_xy, link_max: float):
     """Order centre polylines for cutting and join those whose ends lie within ``link_max``.
 
     Greedy: from ``start_xy`` (the tool's last position), the nearest end of a chain not yet
-    cut (the chain reversed when that is its last point). Returns a list of passes, each a
-    concatenation of chains (the link between two is a straight move, refined later).
+    cut (the chain reversed when that is its last point); quadratic in the number of chains.
+
+    Parameters
+    ----------
+    chains : list of (k_i, 3) float64
+    start_xy : (2,) float
+    link_max : float
+        XY distance up to which the next chain is joined by a straight move (refined later)
+        instead of starting a new pass.
+
+    Returns
+    -------
+    list of (k, 3) float64
+        The passes, each a concatenation of chains.
     """
     if not chains:
         return []
@@ -405,7 +447,8 @@ class PencilResult:
     stats : dict
         ``samples`` (facing the tool), ``searched``, ``centres`` (rest in the band),
         ``thinned``, ``chains``, ``passes``, ``cl_points``, ``feed_mm`` (cut length of the
-        passes, links included), ``given_up``, ``working_set_full``, ``settled_points``.
+        passes, links included), ``given_up``, ``rounds_used_up`` (no pass for them),
+        ``settled_points``, ``density_per_mm2`` (as used), ``low``, ``high``.
     """
 
     passes: list
@@ -424,7 +467,7 @@ def pencil_passes(cutter, V, F, h: float, tol: float, *, density: float = 30.0, 
     V, F : arrays
         The part (the cutter's mesh).
     h : float
-        Scallop height: samples whose best ball leaves more are beyond reach (no pass).
+        Scallop height (the unit of ``low`` and ``high``).
     tol : float
         Chord tolerance ``e``: no centre move cuts more than ``e / 2`` into the part
         (:meth:`conformill.cutter.BallCutter.refine`).
@@ -434,6 +477,9 @@ def pencil_passes(cutter, V, F, h: float, tol: float, *, density: float = 30.0, 
         The band of the rest (x h) whose centres make passes: samples whose tangent ball
         leaves at most ``low h`` need no pass, those whose best ball leaves more than
         ``high h`` get none.
+    min_chain : int
+        Fewest centres a chain needs to be cut (1: a lone centre too, as a point of the
+        pass that links it to its neighbours).
     settle_tol : float
         Each chain is settled into the drop surface's valleys to this float (mm; 0: not).
     link_max : float
@@ -453,12 +499,27 @@ def pencil_passes(cutter, V, F, h: float, tol: float, *, density: float = 30.0, 
     Raises
     ------
     PlanningError
-        Non-positive ``h``, ``tol`` or ``density``.
+        Non-positive ``h``, ``tol``, ``density`` or ``link_max``; not ``0 <= low < high``;
+        ``min_chain`` below 1.
+
+    Notes
+    -----
+    At most 4M samples are drawn: on a larger part the density is lowered to fit, with a
+    warning.
     """
-    for name, v in (("scallop", h), ("tolerance", tol), ("pencil density", density)):
+    for name, v in (("scallop", h), ("tolerance", tol), ("pencil density", density), ("link length", link_max)):
         if not (np.isfinite(v) and v > 0):
             raise PlanningError(f"pencil: {name} must be a positive number, got {v}")
+    if not (np.isfinite(low) and np.isfinite(high) and 0 <= low < high):
+        raise PlanningError(f"pencil: the band of the rest needs 0 <= low < high, got {low}, {high}")
+    if int(min_chain) < 1:
+        raise PlanningError(f"pencil: min_chain must be at least 1, got {min_chain}")
     say = progress or (lambda f: None)
+    area = 0.5 * float(np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1).sum())
+    if density * area > _MAX_SAMPLES:
+        log.warning("pencil: %.0f mm^2 at %.3g samples per mm^2 would be %.3gM samples; using %.3g per mm^2 "
+                    "(at most %dM)", area, density, density * area / 1e6, _MAX_SAMPLES / area, _MAX_SAMPLES // 10**6)
+        density = _MAX_SAMPLES / area
     P, N, faces = surface_samples(V, F, density, seed)
     say(0.02)
     k = len(P)
@@ -496,7 +557,7 @@ def pencil_passes(cutter, V, F, h: float, tol: float, *, density: float = 30.0, 
     stats = {"samples": int(k), "searched": int(np.count_nonzero(state > 0)), "centres": int(useful.sum()),
              "thinned": int(len(B)), "chains": len(chains), "passes": len(passes),
              "cl_points": int(sum(len(p) for p in passes)), "feed_mm": feed,
-             "given_up": int(np.count_nonzero(state == 2)), "working_set_full": int(np.count_nonzero(state == 3)),
+             "given_up": int(np.count_nonzero(state == 2)), "rounds_used_up": int(np.count_nonzero(state == 3)),
              "settled_points": int(n_settled), "density_per_mm2": float(density), "low": float(low),
              "high": float(high)}
     return PencilResult(passes=passes, stats=stats)

@@ -885,6 +885,8 @@ class BallCutter:
         self._T = np.ascontiguousarray(T)  # (m, 13): vertices, unit up normal, 1 / det_xy
         self._B = np.ascontiguousarray(B)  # (m, 11): xy box, top z, plane-bound coefficients, centroid
         self._order = order
+        self._rank = np.empty_like(order)  # input face -> its row in the reordered tables
+        self._rank[order] = np.arange(len(order))
         self._grid = (float(gmin[0]), float(gmin[1]), cell, ncx, ncy)
         self._cstart, self._ctri, self._czmax, self._EB, self._CP = _build_grid(self._T, self._B, radius, gmin[0], gmin[1], cell, ncx, ncy)
         w = int(math.ceil(2 * radius / cell)) + 2
@@ -944,11 +946,9 @@ class BallCutter:
     def _tri_index(self, faces) -> np.ndarray:
         """The kernels' triangle index of input faces ``faces`` (the index is spatially reordered)."""
         faces = np.asarray(faces, dtype=np.int64)
-        if faces.size and (faces.min() < 0 or faces.max() >= len(self._order)):
-            raise PlanningError(f"cutter: face index out of range [0, {len(self._order)})")
-        inv = np.empty_like(self._order)
-        inv[self._order] = np.arange(len(self._order))
-        return np.ascontiguousarray(inv[faces], dtype=np.int64)
+        if faces.size and (faces.min() < 0 or faces.max() >= len(self._rank)):
+            raise PlanningError(f"cutter: face index out of range [0, {len(self._rank)})")
+        return np.ascontiguousarray(self._rank[faces], dtype=np.int64)
 
     # ------------------------------------------------------------------ CC -> CL
     def cl_from_cc(self, cc, n, contacts: bool = False):

@@ -249,7 +249,11 @@ def best_centres(cutter, P, N, faces, low: float = 0.0, give_up: float = np.inf)
     return out[:, :3], out[:, 3], state
 
 
-def surface_samples(V, F, density: float, seed: int = 0):
+def _face_areas(V, F) -> np.ndarray:
+    return 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
+
+
+def surface_samples(V, F, density: float, seed: int = 0, areas=None):
     """Area-uniform samples with vertex normals interpolated, facing the tool (``n_z > 0``).
 
     Parameters
@@ -259,6 +263,8 @@ def surface_samples(V, F, density: float, seed: int = 0):
     density : float
         Samples per mm^2 (``round(density * area)`` are drawn; those facing down are dropped).
     seed : int
+    areas : (m,) float64, optional
+        The faces' areas, when the caller has them.
 
     Returns
     -------
@@ -269,7 +275,7 @@ def surface_samples(V, F, density: float, seed: int = 0):
 
     V = np.asarray(V, dtype=np.float64)
     F = np.asarray(F, dtype=np.int64)
-    a = 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
+    a = _face_areas(V, F) if areas is None else np.asarray(areas, dtype=np.float64)
     n = int(round(density * float(a.sum())))
     rng = np.random.default_rng(seed)
     cum = np.cumsum(a)
@@ -516,12 +522,15 @@ def pencil_passes(cutter, V, F, h: float, tol: float, *, density: float = 30.0, 
     if int(min_chain) < 1:
         raise PlanningError(f"pencil: min_chain must be at least 1, got {min_chain}")
     say = progress or (lambda f: None)
-    area = 0.5 * float(np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1).sum())
+    V = np.asarray(V, dtype=np.float64)
+    F = np.asarray(F, dtype=np.int64)
+    areas = _face_areas(V, F)
+    area = float(areas.sum())
     if density * area > _MAX_SAMPLES:
         log.warning("pencil: %.0f mm^2 at %.3g samples per mm^2 would be %.3gM samples; using %.3g per mm^2 "
                     "(at most %dM)", area, density, density * area / 1e6, _MAX_SAMPLES / area, _MAX_SAMPLES // 10**6)
         density = _MAX_SAMPLES / area
-    P, N, faces = surface_samples(V, F, density, seed)
+    P, N, faces = surface_samples(V, F, density, seed, areas=areas)
     say(0.02)
     k = len(P)
     C = np.empty((k, 3))

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from conformill import pencil
 from conformill.cutter import BallCutter
 from conformill.errors import PlanningError
 from conformill.mesh import synthetic as syn
@@ -58,13 +59,16 @@ class TestBestCentres:
         N = np.array([n for _, n in rows])
         C, rest, state = best_centres(cut, P, N, _faces_under(m.V, m.F, P))
         assert np.all(state == 1)
-        # the last grid's points lie r / 1280 / 3 = 1 um apart: the centre is found to about
-        # 0.5 um across the crease, where D rises at tan(a) = 0.14, so the value to 0.1 um
+        # the last grid's points lie 2 (r / 1280) / (5 - 1) = 1.6 um apart: the centre is found
+        # to one spacing across the crease (its height to that times tan(a) = 0.14, the slope of
+        # D there), and the rest to 0.1 um
+        spacing = 2 * pencil._SPANS[-1] * R / (pencil._GRIDS[-1] - 1)
         for p, n, c, g in zip(P, N, C, rest):
             wedged = np.array([0.0, p[1], R / np.cos(A)])
             assert g == pytest.approx(_ray_gap(p, n, wedged, R), abs=1e-4)
             assert g >= _ray_gap(p, n, wedged, R) - 1e-12  # and no lower than the best ball
-            assert abs(c[0]) < 1e-3 and abs(c[1] - p[1]) < 2e-3 and c[2] == pytest.approx(wedged[2], abs=1e-4)
+            assert abs(c[0]) < spacing and abs(c[1] - p[1]) < 2e-3
+            assert c[2] == pytest.approx(wedged[2], abs=spacing * np.tan(A))  # D rises at tan(a)
         assert rest[0] == pytest.approx(R * (1 / np.cos(A) - 1), abs=1e-4)  # 0.0393 mm on the crease
         # beyond the wedged ball's contacts the tangent ball leaves nothing
         P2 = np.array([[0.8, 1.0, 0.8 * np.tan(A)], [-2.0, -1.0, 2.0 * np.tan(A)]])

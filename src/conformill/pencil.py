@@ -18,10 +18,12 @@ thinned, chained into polylines, settled into the valleys between them, refined
 The search per sample works on a *working-set model* of ``D``: the drop height over a
 few triangles only (``D_W <= D``, cheap to evaluate), starting from the sample's own
 triangle and the contact of the tangent ball (the ball touching ``p`` along its normal,
-dropped). The best centre of the model is searched on grids of 7 x 7 centres, over
-+-0.2 r around the tangent centre, then +-r/20, +-r/80, +-r/320 and +-r/1280 around the
-best one (the shape of :func:`conformill.verify.rest.rest_material`'s search with one start,
-on smaller grids: that one starts from 25 x 25 centres over +-0.4 r and refines on 9 x 9). One
+dropped). The best centre of the model is searched on grids of 7 x 7 centres over
++-0.2 r around the tangent centre and +-r/20 around the best one, then of 5 x 5 over +-r/80,
++-r/320 and +-r/1280 (the shape of :func:`conformill.verify.rest.rest_material`'s search with
+one start, on smaller grids: that one starts from 25 x 25 centres over +-0.4 r and refines on
+9 x 9; 5 x 5 on the last three levels costs 12-18 % less CPU than 7 x 7 on igea and left the
+same scallop, session 22, README "Pencil passes"). One
 true drop at the model's best centre, with the model's height as floor, tells whether a
 triangle of the part rises above the model there; if so it joins the working set and the
 model is searched again (from the best centre, without the coarse grid), else the centre
@@ -65,8 +67,8 @@ log = logging.getLogger(__name__)
 #: Half-widths (units of r) of the search grids: the coarse one around the tangent
 #: centre, then the refining ones around the best centre so far.
 _SPANS = (0.2, 0.05, 0.0125, 0.003125, 0.00078125)
-#: Size of each search grid.
-_GRID = 7
+#: Size of each search grid (points per side), one per span.
+_GRIDS = (7, 7, 5, 5, 5)
 #: Most triangles in a sample's working set, and most rounds of the search.
 _MAX_W = 32
 _MAX_ROUNDS = 24
@@ -111,18 +113,23 @@ def _model_drop(x, y, r, r2, T, W, nw):
 
 
 @njit(cache=True, nogil=True)
-def _model_search(px, py, pz, nx, ny, nz, sx, sy, r, r2, T, W, nw, spans, G):
-    """Best centre of the model on grids of ``G x G`` over each span around the best so far."""
+def _model_search(px, py, pz, nx, ny, nz, sx, sy, r, r2, T, W, nw, spans, grids):
+    """Best centre of the model on grids of ``grids[i] x grids[i]`` over ``spans[i]`` around the best so far."""
     bx = sx
     by = sy
     bz = _model_drop(bx, by, r, r2, T, W, nw)
     bg = _gap(px, py, pz, nx, ny, nz, bx, by, bz, r2)
-    for s in spans:
+    for li in range(len(spans)):
+        s = spans[li]
+        G = grids[li]
+        mid = (G - 1) // 2 if G % 2 == 1 else -1  # the grid's centre is the best so far: known
         cx = bx
         cy = by
         for i in range(G):
             x = cx + s * (-1.0 + 2.0 * i / (G - 1))
             for j in range(G):
+                if i == mid and j == mid:
+                    continue
                 y = cy + s * (-1.0 + 2.0 * j / (G - 1))
                 z = _model_drop(x, y, r, r2, T, W, nw)
                 g = _gap(px, py, pz, nx, ny, nz, x, y, z, r2)
@@ -138,7 +145,7 @@ def _model_search(px, py, pz, nx, ny, nz, sx, sy, r, r2, T, W, nw, spans, G):
 
 @njit(cache=True, nogil=True, parallel=True)
 def _best_many(P, N, face, r, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, CP, maxwin,
-               spans, G, low, give_up, blocks):
+               spans, grids, low, give_up, blocks):
     """Per sample: best centre (x, y, z), its rest, and how the search ended.
 
     ``state``: 0 the tangent ball leaves at most ``low`` (no search), 1 searched (exact
@@ -178,9 +185,9 @@ def _best_many(P, N, face, r, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czma
                 while it < _MAX_ROUNDS:
                     it += 1
                     if it == 1:
-                        x, y, z, g = _model_search(px, py, pz, nx, ny, nz, tx, ty, r, r2, T, W, nw, spans, G)
+                        x, y, z, g = _model_search(px, py, pz, nx, ny, nz, tx, ty, r, r2, T, W, nw, spans, grids)
                     else:
-                        x, y, z, g = _model_search(px, py, pz, nx, ny, nz, x, y, r, r2, T, W, nw, spans[1:], G)
+                        x, y, z, g = _model_search(px, py, pz, nx, ny, nz, x, y, r, r2, T, W, nw, spans[1:], grids[1:])
                     if g > give_up:  # the model only rises as triangles join: so does the truth
                         st = 2
                         break
@@ -244,7 +251,7 @@ def best_centres(cutter, P, N, faces, low: float = 0.0, give_up: float = np.inf)
     # depend on the order anyway)
     blocks = np.random.default_rng(0).permutation((len(P) + _CHUNK - 1) // _CHUNK)
     out, state = _best_many(P, N, tri, cutter.radius, *cutter._kernel_args(),
-                            np.asarray(_SPANS, dtype=np.float64) * cutter.radius, _GRID, float(low), float(give_up),
+                            np.asarray(_SPANS, dtype=np.float64) * cutter.radius, np.asarray(_GRIDS, dtype=np.int64), float(low), float(give_up),
                             blocks)
     return out[:, :3], out[:, 3], state
 

@@ -43,8 +43,9 @@ The samples are drawn per unit area (``density``), with vertex normals interpola
 and the passes join centres that lie within 3.3 sample spacings of each other. On igea's
 default contour (session 21's final code) 20 / 30 samples per mm^2 leave 1.026 / 1.018 h at
 p99.9 for 14.7 / 16.6 m more feed (8 / 9 %), the stage taking about 7 s on 2 cores (plan with
-it minus plan without, in one run; about 20 us of CPU per sample); earlier, before
-lone centres were kept, 43 per mm^2 left 1.010 h. Samples whose rounds ran out (state 3,
+it minus plan without, in one run; about 20 us of CPU per sample, 19 % less since session
+22's smaller grids, ``benchmarks/bench_pencil.py``); earlier, before lone centres were kept,
+43 per mm^2 left 1.010 h. Samples whose rounds ran out (state 3,
 :func:`best_centres`) give no pass.
 """
 

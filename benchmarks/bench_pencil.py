@@ -83,10 +83,11 @@ def main(argv=None) -> int:
         c = [t[1] for t in times[s]]
         c_first = min(c) if c_first is None else c_first
         counts = np.bincount(state, minlength=4)
+        kept = f"{100 * np.count_nonzero(band & band0) / band0.sum():.1f} %" if band0.any() else "-"
         print(f"| {','.join(map(str, s))} | {min(w):.2f} ({' '.join(f'{x:.2f}' for x in w)}) | {min(c):.2f} "
               f"({' '.join(f'{x:.2f}' for x in c)}) | {min(c) / c_first:.3f} | {1e6 * min(c) / len(P):.1f} | "
               f"{counts[0]} | {counts[1] + counts[3]} | {counts[2]} | {int(band.sum())} | "
-              f"{100 * np.count_nonzero(band & band0) / max(int(band0.sum()), 1):.1f} % |")
+              f"{kept} |")
     return 0
 
 

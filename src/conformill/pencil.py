@@ -22,7 +22,7 @@ dropped). The best centre of the model is searched on grids of 7 x 7 centres ove
 +-0.2 r around the tangent centre and +-r/20 around the best one, then of 5 x 5 over +-r/80,
 +-r/320 and +-r/1280 (the shape of :func:`conformill.verify.rest.rest_material`'s search with
 one start, on smaller grids: that one starts from 25 x 25 centres over +-0.4 r and refines on
-9 x 9; 5 x 5 on the last three levels costs 12-18 % less CPU than 7 x 7 on igea and left the
+9 x 9; 5 x 5 on the last three levels costs 12-19 % less CPU than 7 x 7 on igea and left the
 same scallop, session 22, README "Pencil passes"). One
 true drop at the model's best centre, with the model's height as floor, tells whether a
 triangle of the part rises above the model there; if so it joins the working set and the
@@ -252,8 +252,8 @@ def best_centres(cutter, P, N, faces, low: float = 0.0, give_up: float = np.inf)
     # depend on the order anyway)
     blocks = np.random.default_rng(0).permutation((len(P) + _CHUNK - 1) // _CHUNK)
     out, state = _best_many(P, N, tri, cutter.radius, *cutter._kernel_args(),
-                            np.asarray(_SPANS, dtype=np.float64) * cutter.radius, np.asarray(_GRIDS, dtype=np.int64), float(low), float(give_up),
-                            blocks)
+                            np.asarray(_SPANS, dtype=np.float64) * cutter.radius, np.asarray(_GRIDS, dtype=np.int64),
+                            float(low), float(give_up), blocks)
     return out[:, :3], out[:, 3], state
 
 

@@ -94,9 +94,9 @@ class Job:
         part is tighter than the ball (:mod:`conformill.pencil`): the centres of surface
         samples whose least possible material lies in (0.15 h, h], chained, settled and
         refined. On igea (contour, h = 0.01) it takes the reachable p99.9 from 1.256 h to
-        1.018 h for 9 % more feed, and six of seven scans within 1.05 h for 2-19 % (see
-        README, "Pencil passes"), at a cost growing with the area and ``pencil_density``
-        (7-8 s on igea contour at 30 per mm^2).
+        1.018 h for 9 % more feed, and six of the eight scans measured within 1.05 h for
+        2-20 % (see README, "Pencil passes"), at a cost growing with the area and
+        ``pencil_density`` (7-8 s on igea contour at 30 per mm^2).
     pencil_density : float
         Samples per mm^2 the pencil stage searches (30: 0.18 mm apart).
     """

@@ -10,7 +10,12 @@ searched, given up) and how many centres fall in the band (0.15 h, h], with how 
 the first setting's band centres each other setting keeps.
 
     python benchmarks/bench_pencil.py [MESH] [--density 30] [--h 0.01] [--radius 4]
-        [--grids 7,7,7,7,7 7,7,5,5,5] [--repeat 2]
+        [--grids 7,7,7,7,7 7,7,5,5,5] [--repeat 2] [--folds]
+
+With ``--folds`` the fold search (:func:`conformill.folds.fold_points`, a grid of the same
+density per mm^2 of the XY plane) runs interleaved with the others and gets a row: its
+time, its fold points with a shadow deeper than 0.15 h, and the share of the first
+setting's band centres within 0.1 mm of one of them.
 
 ``MESH`` is a short name of :data:`_common.MESH_FILES` (default ``igea``). A grid setting
 is the points per side of each of the search's five levels (``pencil._GRIDS``).
@@ -37,6 +42,7 @@ def main(argv=None) -> int:
     ap.add_argument("--radius", type=float, default=4.0)
     ap.add_argument("--grids", nargs="*", default=["7,7,7,7,7", "7,7,5,5,5"])
     ap.add_argument("--repeat", type=int, default=2)
+    ap.add_argument("--folds", action="store_true", help="also time the fold search")
     args = ap.parse_args(argv)
 
     from conformill import pencil
@@ -56,17 +62,27 @@ def main(argv=None) -> int:
     default = pencil._GRIDS
     times = {s: [] for s in settings}
     ends = {}
+    from conformill.folds import fold_points, wedge_jump
+
+    spacing, jump = 1.0 / np.sqrt(args.density), wedge_jump(args.radius, 0.15 * h)
+    folds_t, fp = [], None
     try:
         for s in settings:  # compile / warm
             pencil._GRIDS = s
             pencil.best_centres(cut, P[:512], N[:512], f[:512], low=0.15 * h, give_up=1.05 * h)
+        if args.folds:
+            fold_points(cut, 10 * spacing, jump)
         for _ in range(args.repeat):
+            if args.folds:
+                t0, c0 = time.perf_counter(), time.process_time()
+                fp = fold_points(cut, spacing, jump)
+                folds_t.append((time.perf_counter() - t0, time.process_time() - c0))
             for s in settings:
                 pencil._GRIDS = s
                 t0, c0 = time.perf_counter(), time.process_time()
                 C, rest, state = pencil.best_centres(cut, P, N, f, low=0.15 * h, give_up=1.05 * h)
                 times[s].append((time.perf_counter() - t0, time.process_time() - c0))
-                ends[s] = (rest, state)
+                ends[s] = (rest, state, C)
     finally:
         pencil._GRIDS = default
     band0 = None
@@ -76,7 +92,7 @@ def main(argv=None) -> int:
     print("|---|---|---|---|---|---|---|---|---|---|")
     c_first = None
     for s in settings:
-        rest, state = ends[s]
+        rest, state, _ = ends[s]
         band = (state == 1) & (rest > 0.15 * h) & (rest <= h)
         band0 = band if band0 is None else band0
         w = [t[0] for t in times[s]]
@@ -88,6 +104,20 @@ def main(argv=None) -> int:
               f"({' '.join(f'{x:.2f}' for x in c)}) | {min(c) / c_first:.3f} | {1e6 * min(c) / len(P):.1f} | "
               f"{counts[0]} | {counts[1] + counts[3]} | {counts[2]} | {int(band.sum())} | "
               f"{kept} |")
+    if fp is not None:
+        from scipy.spatial import cKDTree
+
+        deep = fp.shadow > 0.15 * h
+        C0 = ends[settings[0]][2]
+        d, _ = cKDTree(fp.centres[deep, :2]).query(C0[band0, :2]) if deep.any() else (np.full(band0.sum(), np.inf), 0)
+        w = [t[0] for t in folds_t]
+        c = [t[1] for t in folds_t]
+        print()
+        print(f"folds ({spacing:.3f} mm grid, {fp.stats['grid_points']} points with a drop, jump {jump:.3f} mm): "
+              f"wall {min(w):.2f} s ({' '.join(f'{x:.2f}' for x in w)}), cpu {min(c):.2f} s, "
+              f"{min(c) / c_first:.3f} x the first setting's cpu; {fp.stats['edges']} edges crossed, "
+              f"{fp.stats['drops_per_edge']:.2f} drops each; {int(deep.sum())} fold points with a shadow deeper "
+              f"than 0.15 h; {100 * np.mean(d < 0.1):.1f} % of the first setting's band centres within 0.1 mm of one")
     return 0
 
 

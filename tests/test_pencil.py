@@ -114,20 +114,23 @@ class TestBestCentres:
 
 
 class TestPencilPasses:
+    @pytest.mark.parametrize("search", pencil.SEARCHES)
     @pytest.mark.parametrize("part", [syn.plane(size=40.0, spacing=2.0),
                                       syn.sphere_cap(R=30.0, radius_xy=15.0, spacing=1.0)], ids=["plane", "dome"])
-    def test_none_on_convex_parts(self, part):
+    def test_none_on_convex_parts(self, part, search):
         cut = BallCutter(part.V, part.F, R)
-        res = pencil_passes(cut, part.V, part.F, 0.01, 0.01, density=10.0)
-        assert res.passes == [] and res.stats["centres"] == 0 and res.stats["samples"] > 1000
+        res = pencil_passes(cut, part.V, part.F, 0.01, 0.01, search=search, density=10.0)
+        assert res.passes == [] and res.stats["centres"] == 0 and res.stats["search"] == search
+        assert res.stats["samples" if search == "samples" else "grid_points"] > 1000
 
-    def test_pass_runs_along_the_crease(self):
+    @pytest.mark.parametrize("search", pencil.SEARCHES)
+    def test_pass_runs_along_the_crease(self, search):
         # rest on the crease 0.039 mm = 0.39 h at h = 0.1: a pass along x = 0 at the wedged
-        # height, unbroken over the groove's middle
+        # height, unbroken over the groove's middle (fold points: one per grid row, 0.18 mm)
         m = syn.v_groove(a_deg=8.0, half=12.0, step=0.25)
         cut = BallCutter(m.V, m.F, R)
-        res = pencil_passes(cut, m.V, m.F, 0.1, 0.01, density=30.0)
-        assert res.passes and res.stats["centres"] > 100
+        res = pencil_passes(cut, m.V, m.F, 0.1, 0.01, search=search, density=30.0)
+        assert res.passes and res.stats["centres"] > (100 if search == "samples" else 80)
         Q = np.vstack(res.passes)
         mid = Q[np.abs(Q[:, 1]) <= 12.0 - R - 1.0]
         assert len(mid) > 0
@@ -155,9 +158,15 @@ class TestPencilPasses:
         # the groove's ends (a sample or two, where the ball can sit past the end)
         assert pencil_passes(cut, m.V, m.F, 0.1, 0.01, low=0.9 * top / 0.1).stats["centres"] > 0
         assert pencil_passes(cut, m.V, m.F, 0.1, 0.01, low=1.1 * top / 0.1, high=2.0).stats["centres"] <= 2
+        # the folds' shadow is the crease's gap: the same band edge, and no ends (the ball past
+        # the groove's end touches one wall only)
+        assert pencil_passes(cut, m.V, m.F, 0.1, 0.01, search="folds", low=0.9 * top / 0.1).stats["centres"] > 80
+        assert pencil_passes(cut, m.V, m.F, 0.1, 0.01, search="folds", low=1.1 * top / 0.1).stats["centres"] == 0
 
-    def test_same_passes_whatever_the_threads(self):
-        # every sample's search is its own: the blocks' order and the thread count change nothing
+    @pytest.mark.parametrize("search", pencil.SEARCHES)
+    def test_same_passes_whatever_the_threads(self, search):
+        # every sample's (grid edge's) search is its own: the blocks' order and the thread
+        # count change nothing
         import numba
 
         m = syn.v_groove(a_deg=8.0, half=12.0, step=0.25)
@@ -167,7 +176,7 @@ class TestPencilPasses:
             out = []
             for t in sorted({1, n}):
                 numba.set_num_threads(t)
-                out.append(pencil_passes(cut, m.V, m.F, 0.1, 0.01, settle_tol=0.05))
+                out.append(pencil_passes(cut, m.V, m.F, 0.1, 0.01, search=search, settle_tol=0.05))
         finally:
             numba.set_num_threads(n)
         assert out[0].stats == out[-1].stats
@@ -179,7 +188,8 @@ class TestPencilPasses:
         cut = BallCutter(m.V, m.F, R)
         for kw, word in ((dict(h=0.0), "scallop"), (dict(tol=-1.0), "tolerance"), (dict(density=0.0), "density"),
                          (dict(low=0.5, high=0.5), "band"), (dict(low=-0.1), "band"), (dict(high=np.nan), "band"),
-                         (dict(min_chain=0), "min_chain"), (dict(link_max=0.0), "link")):
+                         (dict(min_chain=0), "min_chain"), (dict(link_max=0.0), "link"),
+                         (dict(search="grid"), "search")):
             args = {**dict(h=0.1, tol=0.01, density=1.0), **kw}
             with pytest.raises(PlanningError, match=word):
                 pencil_passes(cut, m.V, m.F, args.pop("h"), args.pop("tol"), **args)
@@ -191,7 +201,7 @@ class TestPencilPasses:
         m = syn.plane(size=40.0, spacing=4.0)
         cut = BallCutter(m.V, m.F, R)
         with caplog.at_level("WARNING"):
-            res = pencil_passes(cut, m.V, m.F, 0.1, 0.01, density=30.0)
+            res = pencil_passes(cut, m.V, m.F, 0.1, 0.01, search="samples", density=30.0)
         assert res.stats["samples"] <= 5000 and res.stats["density_per_mm2"] == pytest.approx(5000 / 1600.0)
         assert "samples per mm^2" in caplog.text
 

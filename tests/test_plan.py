@@ -112,6 +112,7 @@ def test_adjacent_paths_never_farther_than_allowed():
         (dict(fit="coarse"), "fit"),
         (dict(pencil=True, pencil_density=0.0), "pencil-density"),
         (dict(pencil=True, pencil_density=float("inf")), "pencil-density"),
+        (dict(pencil=True, pencil_search="grid"), "pencil-search"),
     ],
 )
 def test_bad_job_values_are_refused(kw, word):

@@ -98,7 +98,12 @@ class Job:
         2-20 % (see README, "Pencil passes"), at a cost growing with the area and
         ``pencil_density`` (7-8 s on igea contour at 30 per mm^2).
     pencil_density : float
-        Samples per mm^2 the pencil stage searches (30: 0.18 mm apart).
+        Samples per mm^2 the pencil stage searches (30: 0.18 mm apart); with
+        ``pencil_search = "folds"``, grid points per mm^2 of the XY plane.
+    pencil_search : str
+        How the pencil stage finds the wedged balls (:func:`conformill.pencil.pencil_passes`):
+        ``"samples"`` (the best ball of each surface sample) or ``"folds"`` (the folds of
+        the drop surface crossing an XY grid, :mod:`conformill.folds`).
     """
 
     pattern: str = "spiral"
@@ -121,6 +126,7 @@ class Job:
     fit: str = "mesh"
     pencil: bool = False
     pencil_density: float = 30.0
+    pencil_search: str = "folds"
 
 
 class _Timer:
@@ -159,6 +165,8 @@ def check_job(job: Job) -> None:
         raise PlanningError(f"fit must be 'mesh' or 'split', got {job.fit!r}")
     if not (np.isfinite(job.pencil_density) and job.pencil_density > 0):
         raise PlanningError(f"pencil-density must be a positive number, got {job.pencil_density}")
+    if job.pencil_search not in ("folds", "samples"):
+        raise PlanningError(f"pencil-search must be 'folds' or 'samples', got {job.pencil_search!r}")
 
 
 def face_normals(V: np.ndarray, F: np.ndarray):
@@ -395,7 +403,8 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
             with timer("pencil"):
                 cutter = builder.cutter if builder.cutter is not None else BallCutter(mesh.V, mesh.F, r)
                 start = passes[-1][-1, :2] if passes else mesh.V[:, :2].mean(axis=0)
-                pencil = pencil_passes(cutter, mesh.V, mesh.F, h, e, density=job.pencil_density,
+                pencil = pencil_passes(cutter, mesh.V, mesh.F, h, e, search=job.pencil_search,
+                                       density=job.pencil_density,
                                        settle_tol=job.settle * h, link_max=link_max, start_xy=start,
                                        progress=lambda f: say("pencil", f))
                 passes = passes + [cutter.tip(p) for p in pencil.passes]
@@ -420,7 +429,8 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
                 "weights": job.weights, "max_step": job.max_step, "link_max": link_max,
                 "forward_chord_tolerance": e_fwd, "forward_chord_tolerance_convex": e_cvx,
                 "concave_steps": job.concave_steps, "spacing": job.spacing, "settle": job.settle,
-                "fit": job.fit, "pencil": job.pencil, "pencil_density": job.pencil_density},
+                "fit": job.fit, "pencil": job.pencil, "pencil_density": job.pencil_density,
+                "pencil_search": job.pencil_search},
         "orientation": orient_info,
         "parameterization": {"boundary": param.kind, "domain": param.domain, "corners": param.corners,
                              "solver": param.solver, "residual": param.residual, "fallbacks": param.fallbacks,

@@ -47,7 +47,11 @@ def add_arguments(p) -> None:
                         "verified scallop came within 1.05 H on six of the eight scans measured for 2-20 %% more "
                         "feed, at some seconds more (on a deep relief a higher --pencil-density helps)")
     p.add_argument("--pencil-density", type=float, default=30.0, metavar="D",
-                   help="surface samples per mm^2 the pencil passes are searched from (30)")
+                   help="surface samples (or, with --pencil-search folds, XY grid points) per mm^2 the pencil "
+                        "passes are searched from (30)")
+    p.add_argument("--pencil-search", choices=["folds", "samples"], default=None,
+                   help="how the pencil stage finds the wedged balls: the folds of the drop surface crossing an XY "
+                        "grid, or the best ball of each surface sample (slower)")
     p.add_argument("--max-step", type=float, default=10.0, metavar="L", help="longest forward step, mm (10)")
     p.add_argument("--threads", type=int, default=None, metavar="N",
                    help="threads for parallel stages (default all; with 1 the cutter runs after the pattern stage)")
@@ -95,7 +99,8 @@ def run(args) -> int:
               feed=args.feed, plunge_feed=args.plunge_feed, safe_z=args.safe_z, orient=args.orient,
               weights=args.weights, corners=_corners(args.corners), max_step=args.max_step, spindle=args.spindle,
               concave_steps=args.concave_steps, spacing=args.spacing, settle=args.settle, fit=args.fit,
-              pencil=args.pencil, pencil_density=args.pencil_density)
+              pencil=args.pencil, pencil_density=args.pencil_density,
+              **({} if args.pencil_search is None else {"pencil_search": args.pencil_search}))
     from conformill.pipeline import check_job
 
     check_job(job)
@@ -127,7 +132,8 @@ def run(args) -> int:
         "programmed point": "tool tip", "units": "mm",
     }
     if job.pencil:  # only then: the default program's bytes stay as they were
-        header["pencil"] = f"samples per mm2 {job.pencil_density:g}"
+        header["pencil"] = (f"samples per mm2 {job.pencil_density:g}" if job.pencil_search == "samples"
+                            else f"folds, grid points per mm2 {job.pencil_density:g}")
     with all_or_nothing(args.output, args.report, args.plot, args.html):
         t = time.perf_counter()
         stats = write_gcode(args.output, result.toolpath, feed=job.feed, plunge_feed=job.plunge_feed or job.feed / 3,
@@ -223,6 +229,12 @@ def peak_rss_mb() -> float:
         return psutil.Process().memory_info().peak_wset / 2**20
 
 
+def _pencil_source(st: dict) -> str:
+    if st.get("search") == "folds":
+        return f"{st['centres']} fold points ({st['grid_points']} grid points)"
+    return f"{st['centres']} best ball centres ({st['samples']} samples)"
+
+
 def _summary(rep: dict, out: str) -> None:
     pr, pa, q = rep["program"], rep["paths"], rep["parameterization"]["quality"]
     lines = [
@@ -235,8 +247,7 @@ def _summary(rep: dict, out: str) -> None:
         f"  program           feed {pr['feed_length_mm'] / 1000:.2f} m, rapid {pr['rapid_length_mm'] / 1000:.2f} m, "
         f"{pr['machining_time_min']:.1f} min at feed, {pr['n_lines']} lines",
         *([f"  pencil            {rep['pencil']['passes']} pass(es), {rep['pencil']['cl_points']} CL points, "
-           f"{rep['pencil']['feed_mm'] / 1000:.2f} m from {rep['pencil']['centres']} best ball centres "
-           f"({rep['pencil']['samples']} samples)"] if rep.get("pencil") else []),
+           f"{rep['pencil']['feed_mm'] / 1000:.2f} m from {_pencil_source(rep['pencil'])}"] if rep.get("pencil") else []),
         f"  reachability      undercut {100 * rep['reachability']['undercut_share']:.2f}%, concave below R "
         f"{100 * rep['reachability']['concave_below_tool_radius_share']:.2f}%",
     ]

@@ -12,10 +12,10 @@ length and the time for the knobs that densify the program:
 * ``fit split``: ``Job.fit = "split"`` (``--fit split``): only the planner's curvature fit
   works on the split mesh below; the cutter stays on the input mesh;
 * ``pencil``: ``Job.pencil`` (``--pencil``): pencil passes through the wedged balls after
-  the pattern (:mod:`conformill.pencil`), found by the default search (the folds of the drop
-  surface on an XY grid, :mod:`conformill.folds`) at the default 30 or the given grid points
-  per mm^2; ``pencil samples``: by the per-sample search (``--pencil-search samples``), at the
-  default 30 or the given samples per mm^2;
+  the pattern (:mod:`conformill.pencil`), found by the default search (per surface sample)
+  at the default 30 or the given samples per mm^2; ``pencil folds`` / ``pencil samples``: by
+  the named search (``--pencil-search``; session 23's runs, on f73ad9e, had ``folds`` as
+  the default, so their ``pencil`` rows are the fold search);
 * ``fine``: the same job on the same surface split once more (every triangle into four at its
   edge midpoints, :func:`conformill.mesh.split.split_midpoints`; a planar split, so the surface and the
   drop-cutter's heights are the same): the per-vertex quadratic fit then works at half the
@@ -62,10 +62,10 @@ VARIANTS = {
     "fit split, settle 0.25, planned 0.8 h": ({"fit": "split", "settle": 0.25}, 0.8, False),
     "fit split, settle 0.25, planned 0.7 h": ({"fit": "split", "settle": 0.25}, 0.7, False),
     "pencil": ({"pencil": True}, 1.0, False),
+    "pencil, density 20": ({"pencil": True, "pencil_density": 20.0}, 1.0, False),
+    "pencil, density 43": ({"pencil": True, "pencil_density": 43.0}, 1.0, False),
+    "pencil folds": ({"pencil": True, "pencil_search": "folds"}, 1.0, False),
     "pencil samples": ({"pencil": True, "pencil_search": "samples"}, 1.0, False),
-    "pencil samples, density 20": ({"pencil": True, "pencil_search": "samples", "pencil_density": 20.0}, 1.0, False),
-    "pencil samples, density 43": ({"pencil": True, "pencil_search": "samples", "pencil_density": 43.0}, 1.0, False),
-    "pencil, density 60": ({"pencil": True, "pencil_density": 60.0}, 1.0, False),
 }
 
 

@@ -152,18 +152,18 @@ def test_pencil_option_reaches_the_report_the_header_and_the_summary(part, tmp_p
     assert main(["plan", str(part), "--pattern", "contour", "--tool-radius", "4", "--scallop", "0.5",
                  "--pencil", "--pencil-density", "2", "-o", str(out), "--report", str(rep)]) == 0
     r = json.loads(rep.read_text())
-    assert r["job"]["pencil"] is True and r["job"]["pencil_density"] == 2.0 and r["job"]["pencil_search"] == "folds"
-    assert r["pencil"]["grid_points"] > 0 and "pencil" in r["timings_s"]
-    assert "(param pencil: folds, grid points per mm2 2)" in out.read_text()
-    assert "grid points)" in capsys.readouterr().out
-    # the per-sample search on request
-    assert main(["plan", str(part), "--pattern", "contour", "--tool-radius", "4", "--scallop", "0.5",
-                 "--pencil", "--pencil-search", "samples", "--pencil-density", "2", "-o", str(out),
-                 "--report", str(rep)]) == 0
-    r = json.loads(rep.read_text())
-    assert r["job"]["pencil_search"] == "samples" and r["pencil"]["samples"] > 0
+    assert r["job"]["pencil"] is True and r["job"]["pencil_density"] == 2.0 and r["job"]["pencil_search"] == "samples"
+    assert r["pencil"]["samples"] > 0 and "pencil" in r["timings_s"]
     assert "(param pencil: samples per mm2 2)" in out.read_text()
     assert "samples)" in capsys.readouterr().out
+    # the fold search on request
+    assert main(["plan", str(part), "--pattern", "contour", "--tool-radius", "4", "--scallop", "0.5",
+                 "--pencil", "--pencil-search", "folds", "--pencil-density", "2", "-o", str(out),
+                 "--report", str(rep)]) == 0
+    r = json.loads(rep.read_text())
+    assert r["job"]["pencil_search"] == "folds" and r["pencil"]["grid_points"] > 0
+    assert "(param pencil: folds, grid points per mm2 2)" in out.read_text()
+    assert "grid points)" in capsys.readouterr().out
     _refused_choice(part, tmp_path, capsys, "--pencil-search", "grid")
     # without the option the header says nothing of it (the default program is unchanged)
     plain = tmp_path / "plain.nc"

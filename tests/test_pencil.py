@@ -229,10 +229,11 @@ class TestChains:
         np.testing.assert_array_equal(passes[1][:, 0], [50.0, 51.0])
 
 
-def test_plan_with_pencil_adds_passes_after_the_same_program(tmp_path):
+@pytest.mark.parametrize("search", pencil.SEARCHES)
+def test_plan_with_pencil_adds_passes_after_the_same_program(tmp_path, search):
     # the pattern's passes are those of the plan without the option; the pencil passes
     # come after them (pass id -1), and the material the program leaves on the crease is
-    # the wedged ball's, checked by the independent simulation
+    # the wedged ball's, checked by the independent simulation (either search)
     from conformill.output.gcode import write_gcode
     from conformill.verify.gcode import read_gcode
     from conformill.verify.samples import SurfaceSamples
@@ -241,7 +242,7 @@ def test_plan_with_pencil_adds_passes_after_the_same_program(tmp_path):
     m = syn.v_groove(a_deg=8.0, half=10.0, step=0.5)
     job = Job(pattern="zigzag", tool_radius=R, scallop=0.1, tolerance=0.01)
     base = plan(m, job)
-    res = plan(m, Job(**{**job.__dict__, "pencil": True}))
+    res = plan(m, Job(**{**job.__dict__, "pencil": True, "pencil_search": search}))
     n = len(base.toolpath.passes)
     assert len(res.toolpath.passes) > n and res.toolpath.pass_ids[n:] == [-1] * (len(res.toolpath.passes) - n)
     for a, b in zip(base.toolpath.passes, res.toolpath.passes[:n]):

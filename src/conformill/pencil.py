@@ -8,19 +8,20 @@ between them leaves its scallop on top of the rest: on igea (a face scan, r = 4,
 0.01 mm) the samples left above 1.05 h are almost all there. CAM's answer is *pencil*
 machining: passes along the places where the ball sits wedged against the part.
 
-Two searches find those places. The default, ``search="folds"`` (session 23), visits
-the folds of the drop surface where they cross an XY grid (:mod:`conformill.folds`): a
+Two searches find those places. ``search="folds"`` (session 23) visits the folds of
+the drop surface where they cross an XY grid (:mod:`conformill.folds`): a
 wedged ball's centre lies on such a fold, and its *shadow* (the part between its two
 contacts) is what it leaves; fold points whose shadow is deeper than ``low h`` are
 centres. Where the part is steeper than 78 deg (sample normal ``n_z < 0.2``) a fold
 projects to a short XY segment that the grid crosses too rarely, so the samples there are
 searched one by one as below, and their band centres join the fold points. Against the
 per-sample search on the eight scans measured, this left a lower verified scallop on
-five, the same on two and a higher one on the lion relief (which fails either way), for
-1-15 points more feed (+16 % against +10 % on igea) and a fraction of the stage's time
-(README, "Pencil passes", session 23).
-``search="samples"`` (sessions 21-22) finds the places from the rest itself, sample by
-sample, everywhere. For area-uniform samples of the part it
+five, the same on two and a higher one on the lion relief (which fails either way), in
+18-51 % less time, but for 1-15 points more feed (+16 % against +10 % on igea: twelve
+minutes of machine time for 0.9 s of planning), so it is not the default (README,
+"Pencil passes", session 23). The default, ``search="samples"`` (sessions 21-22), finds
+the places from the rest itself, sample by sample, everywhere. For area-uniform samples
+of the part it
 finds the ball centre on the drop surface ``D`` (the lowest centre over each ``(x, y)``,
 :class:`conformill.cutter.BallCutter`) that leaves least material along the sample's
 normal; the centres of the samples whose rest lies in ``(low h, h]`` (reachable within

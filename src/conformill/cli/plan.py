@@ -50,8 +50,10 @@ def add_arguments(p) -> None:
                    help="surface samples (or, with --pencil-search folds, XY grid points) per mm^2 the pencil "
                         "passes are searched from (30)")
     p.add_argument("--pencil-search", choices=["folds", "samples"], default=None,
-                   help="how the pencil stage finds the wedged balls: the folds of the drop surface crossing an XY "
-                        "grid, or the best ball of each surface sample (slower)")
+                   help="how the pencil stage finds the wedged balls: the best ball of each surface sample "
+                        "(samples, default), or the folds of the drop surface crossing an XY grid (folds: on the "
+                        "scans measured an 18-51 %% quicker stage and the same or a lower scallop, for 1-15 points "
+                        "more feed)")
     p.add_argument("--max-step", type=float, default=10.0, metavar="L", help="longest forward step, mm (10)")
     p.add_argument("--threads", type=int, default=None, metavar="N",
                    help="threads for parallel stages (default all; with 1 the cutter runs after the pattern stage)")

@@ -206,6 +206,19 @@ class TestPencilPasses:
         assert "samples per mm^2" in caplog.text
 
 
+    def test_fold_grid_is_capped_on_a_large_part(self, caplog, monkeypatch):
+        import conformill.folds as folds
+
+        monkeypatch.setattr(folds, "_MAX_GRID", 20000)
+        m = syn.plane(size=40.0, spacing=4.0)
+        cut = BallCutter(m.V, m.F, R)
+        with caplog.at_level("WARNING"):
+            res = pencil_passes(cut, m.V, m.F, 0.1, 0.01, search="folds", density=30.0)
+        # 90 % of the cap per mm^2 of the grid's plane (the part and r around it): the edges round up
+        assert res.stats["grid_points"] <= 20000 and res.stats["density_per_mm2"] == pytest.approx(18000 / 48.0**2)
+        assert "grid points per mm^2" in caplog.text
+
+
 class TestChains:
     def test_points_on_two_lines_make_two_chains_in_order(self):
         t = np.linspace(0.0, 5.0, 26)

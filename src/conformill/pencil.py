@@ -550,8 +550,8 @@ def pencil_passes(cutter, V, F, h: float, tol: float, *, search: str = "samples"
 
     Notes
     -----
-    At most 4M samples are drawn: on a larger part the density is lowered to fit, with a
-    warning.
+    At most 4M samples are drawn (and, with ``"folds"``, a grid of at most 14.4M points):
+    on a larger part the density is lowered to fit, with a warning.
     """
     for name, v in (("scallop", h), ("tolerance", tol), ("pencil density", density), ("link length", link_max)):
         if not (np.isfinite(v) and v > 0):
@@ -570,6 +570,15 @@ def pencil_passes(cutter, V, F, h: float, tol: float, *, search: str = "samples"
     if search == "folds":
         from conformill.folds import fold_points, wedge_jump
 
+        from conformill.folds import _MAX_GRID
+
+        lo = V[:, :2].min(axis=0) - cutter.radius
+        hi = V[:, :2].max(axis=0) + cutter.radius
+        plane = float(np.prod(hi - lo))
+        if density * plane > 0.9 * _MAX_GRID:
+            log.warning("pencil: %.0f mm^2 of XY at %.3g grid points per mm^2 would be %.3gM points; using %.3g "
+                        "per mm^2", plane, density, density * plane / 1e6, 0.9 * _MAX_GRID / plane)
+            density = 0.9 * _MAX_GRID / plane
         spacing = 1.0 / math.sqrt(density)
         fp = fold_points(cutter, spacing, wedge_jump(cutter.radius, low * h))
         say(0.5)

@@ -194,29 +194,25 @@ class TestPencilPasses:
             with pytest.raises(PlanningError, match=word):
                 pencil_passes(cut, m.V, m.F, args.pop("h"), args.pop("tol"), **args)
 
-    def test_density_is_capped_on_a_large_part(self, caplog, monkeypatch):
-        import conformill.pencil as pencil
+    @pytest.mark.parametrize("search, module, cap, count, density, words", [
+        # the samples: at most the cap, over the part's 1600 mm^2
+        ("samples", "conformill.pencil", ("_MAX_SAMPLES", 5000), ("samples", 5000), 5000 / 1600.0,
+         "samples per mm^2"),
+        # the fold grid: 90 % of the cap per mm^2 of the grid's plane (the part and r around
+        # it, 48 mm square); its edges round up, within the cap itself
+        ("folds", "conformill.folds", ("_MAX_GRID", 20000), ("grid_points", 20000), 18000 / 48.0**2,
+         "grid points per mm^2"),
+    ], ids=["samples", "folds"])
+    def test_density_is_capped_on_a_large_part(self, caplog, monkeypatch, search, module, cap, count, density, words):
+        import importlib
 
-        monkeypatch.setattr(pencil, "_MAX_SAMPLES", 5000)
+        monkeypatch.setattr(importlib.import_module(module), *cap)
         m = syn.plane(size=40.0, spacing=4.0)
         cut = BallCutter(m.V, m.F, R)
         with caplog.at_level("WARNING"):
-            res = pencil_passes(cut, m.V, m.F, 0.1, 0.01, search="samples", density=30.0)
-        assert res.stats["samples"] <= 5000 and res.stats["density_per_mm2"] == pytest.approx(5000 / 1600.0)
-        assert "samples per mm^2" in caplog.text
-
-
-    def test_fold_grid_is_capped_on_a_large_part(self, caplog, monkeypatch):
-        import conformill.folds as folds
-
-        monkeypatch.setattr(folds, "_MAX_GRID", 20000)
-        m = syn.plane(size=40.0, spacing=4.0)
-        cut = BallCutter(m.V, m.F, R)
-        with caplog.at_level("WARNING"):
-            res = pencil_passes(cut, m.V, m.F, 0.1, 0.01, search="folds", density=30.0)
-        # 90 % of the cap per mm^2 of the grid's plane (the part and r around it): the edges round up
-        assert res.stats["grid_points"] <= 20000 and res.stats["density_per_mm2"] == pytest.approx(18000 / 48.0**2)
-        assert "grid points per mm^2" in caplog.text
+            res = pencil_passes(cut, m.V, m.F, 0.1, 0.01, search=search, density=30.0)
+        assert res.stats[count[0]] <= count[1] and res.stats["density_per_mm2"] == pytest.approx(density)
+        assert words in caplog.text
 
 
 class TestChains:

@@ -187,6 +187,26 @@ def _tri_drop(px, py, r, r2, T, t):
 
 
 @njit(cache=True, nogil=True, inline="always")
+def _set_top(x, y, r, r2, T, W, nw):
+    """Drop height at ``(x, y)`` over the triangles ``W[:nw]`` only (a lower bound of the
+    drop), and the one that sets it (-1 when none touches the ball)."""
+    z = -np.inf
+    t = -1
+    for k in range(nw):
+        v = _tri_drop(x, y, r, r2, T, W[k])
+        if v > z:
+            z = v
+            t = W[k]
+    return z, t
+
+
+@njit(cache=True, nogil=True)
+def _set_drop(x, y, r, r2, T, W, nw):
+    """Drop height at ``(x, y)`` over the triangles ``W[:nw]`` only: :func:`_set_top`'s height."""
+    return _set_top(x, y, r, r2, T, W, nw)[0]
+
+
+@njit(cache=True, nogil=True, inline="always")
 def _tangent_bound(px, py, r2, T, B, t):
     """Upper bound of the drop height onto triangle ``t`` (``+inf`` when not applicable).
 

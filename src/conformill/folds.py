@@ -48,8 +48,9 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit, prange
 
-from conformill.cutter import _drop_point, _tri_drop
+from conformill.cutter import _drop_point, _set_drop, _set_top
 from conformill.errors import PlanningError
+from conformill.geometry.closest import closest_on_triangle
 
 __all__ = ["FoldPoints", "fold_points", "wedge_jump"]
 
@@ -98,43 +99,9 @@ def wedge_jump(r: float, depth: float) -> float:
 
 @njit(cache=True, nogil=True, inline="always")
 def _closest(px, py, pz, T, t):
-    """Point of triangle ``t`` (rows of the cutter's table ``T``) nearest ``p`` (Ericson, 5.1.5)."""
-    ax, ay, az = T[t, 0], T[t, 1], T[t, 2]
-    bx, by, bz = T[t, 3], T[t, 4], T[t, 5]
-    cx, cy, cz = T[t, 6], T[t, 7], T[t, 8]
-    abx, aby, abz = bx - ax, by - ay, bz - az
-    acx, acy, acz = cx - ax, cy - ay, cz - az
-    apx, apy, apz = px - ax, py - ay, pz - az
-    d1 = abx * apx + aby * apy + abz * apz
-    d2 = acx * apx + acy * apy + acz * apz
-    if d1 <= 0.0 and d2 <= 0.0:
-        return ax, ay, az
-    bpx, bpy, bpz = px - bx, py - by, pz - bz
-    d3 = abx * bpx + aby * bpy + abz * bpz
-    d4 = acx * bpx + acy * bpy + acz * bpz
-    if d3 >= 0.0 and d4 <= d3:
-        return bx, by, bz
-    vc = d1 * d4 - d3 * d2
-    if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
-        v = d1 / (d1 - d3)
-        return ax + v * abx, ay + v * aby, az + v * abz
-    cpx, cpy, cpz = px - cx, py - cy, pz - cz
-    d5 = abx * cpx + aby * cpy + abz * cpz
-    d6 = acx * cpx + acy * cpy + acz * cpz
-    if d6 >= 0.0 and d5 <= d6:
-        return cx, cy, cz
-    vb = d5 * d2 - d1 * d6
-    if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
-        w = d2 / (d2 - d6)
-        return ax + w * acx, ay + w * acy, az + w * acz
-    va = d3 * d6 - d5 * d4
-    if va <= 0.0 and d4 - d3 >= 0.0 and d5 - d6 >= 0.0:
-        w = (d4 - d3) / ((d4 - d3) + (d5 - d6))
-        return bx + w * (cx - bx), by + w * (cy - by), bz + w * (cz - bz)
-    den = 1.0 / (va + vb + vc)
-    v = vb * den
-    w = vc * den
-    return ax + abx * v + acx * w, ay + aby * v + acy * w, az + abz * v + acz * w
+    """Point of triangle ``t`` (a row of the cutter's table ``T``) nearest ``p``."""
+    return closest_on_triangle(px, py, pz, T[t, 0], T[t, 1], T[t, 2], T[t, 3], T[t, 4], T[t, 5],
+                               T[t, 6], T[t, 7], T[t, 8])
 
 
 @njit(cache=True, nogil=True, parallel=True)
@@ -147,28 +114,6 @@ def _contacts(X, Y, Z, tri, T):
         if t >= 0:
             Q[i, 0], Q[i, 1], Q[i, 2] = _closest(X[i], Y[i], Z[i], T, t)
     return Q
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _side_max(x, y, r, r2, T, S, ns):
-    z = -np.inf
-    for k in range(ns):
-        v = _tri_drop(x, y, r, r2, T, S[k])
-        if v > z:
-            z = v
-    return z
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _top_triangle(x, y, r, r2, T, S, ns):
-    z = -np.inf
-    best = S[0]
-    for k in range(ns):
-        v = _tri_drop(x, y, r, r2, T, S[k])
-        if v > z:
-            z = v
-            best = S[k]
-    return best
 
 
 @njit(cache=True, nogil=True, parallel=True)
@@ -202,14 +147,14 @@ def _crossings(A, B, TA, TB, QA, QB, r, tol_t, T, Bt, gx0, gy0, cell, ncx, ncy, 
                 t = 0.5 * (lo + hi)
                 x = xa + t * (xb - xa)
                 y = ya + t * (yb - ya)
-                if _side_max(x, y, r, r2, T, SA, na) >= _side_max(x, y, r, r2, T, SB, nb):
+                if _set_drop(x, y, r, r2, T, SA, na) >= _set_drop(x, y, r, r2, T, SB, nb):
                     lo = t
                 else:
                     hi = t
             t = 0.5 * (lo + hi)
             x = xa + t * (xb - xa)
             y = ya + t * (yb - ya)
-            z = max(_side_max(x, y, r, r2, T, SA, na), _side_max(x, y, r, r2, T, SB, nb))
+            z = max(_set_drop(x, y, r, r2, T, SA, na), _set_drop(x, y, r, r2, T, SB, nb))
             hz, tt = _drop_point(x, y, r, r2, T, Bt, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, CP,
                                  -1, cid, cbound, z + 1e-9, False)
             drops += 1
@@ -229,8 +174,10 @@ def _crossings(A, B, TA, TB, QA, QB, r, tol_t, T, Bt, gx0, gy0, cell, ncx, ncy, 
                     break
                 SB[nb] = tt
                 nb += 1
-        ta = _top_triangle(x, y, r, r2, T, SA, na)
-        tb = _top_triangle(x, y, r, r2, T, SB, nb)
+        ta = _set_top(x, y, r, r2, T, SA, na)[1]
+        tb = _set_top(x, y, r, r2, T, SB, nb)[1]
+        ta = ta if ta >= 0 else SA[0]
+        tb = tb if tb >= 0 else SB[0]
         out[k, 0] = x
         out[k, 1] = y
         out[k, 2] = z

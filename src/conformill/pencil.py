@@ -72,7 +72,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit, prange
 
-from conformill.cutter import _drop_point, _tri_drop
+from conformill.cutter import _drop_point, _set_drop
 from conformill.errors import PlanningError
 
 __all__ = ["SEARCHES", "PencilResult", "best_centres", "pencil_passes", "surface_samples"]
@@ -124,22 +124,11 @@ def _gap(px, py, pz, nx, ny, nz, cx, cy, cz, r2):
 
 
 @njit(cache=True, nogil=True)
-def _model_drop(x, y, r, r2, T, W, nw):
-    """Drop height at ``(x, y)`` over the working-set triangles ``W[:nw]`` only."""
-    z = -np.inf
-    for k in range(nw):
-        v = _tri_drop(x, y, r, r2, T, W[k])
-        if v > z:
-            z = v
-    return z
-
-
-@njit(cache=True, nogil=True)
 def _model_search(px, py, pz, nx, ny, nz, sx, sy, r, r2, T, W, nw, spans, grids):
     """Best centre of the model on grids of ``grids[i] x grids[i]`` over ``spans[i]`` around the best so far."""
     bx = sx
     by = sy
-    bz = _model_drop(bx, by, r, r2, T, W, nw)
+    bz = _set_drop(bx, by, r, r2, T, W, nw)
     bg = _gap(px, py, pz, nx, ny, nz, bx, by, bz, r2)
     for li in range(len(spans)):
         s = spans[li]
@@ -153,7 +142,7 @@ def _model_search(px, py, pz, nx, ny, nz, sx, sy, r, r2, T, W, nw, spans, grids)
                 if i == mid and j == mid:
                     continue
                 y = cy + s * (-1.0 + 2.0 * j / (G - 1))
-                z = _model_drop(x, y, r, r2, T, W, nw)
+                z = _set_drop(x, y, r, r2, T, W, nw)
                 g = _gap(px, py, pz, nx, ny, nz, x, y, z, r2)
                 if g < bg:
                     bg = g

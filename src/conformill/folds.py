@@ -21,8 +21,8 @@ The search visits the folds, not the surface:
    triangles. The model is a lower bound of ``D``, so where one true drop at the model's
    crossing (with the model's height as floor) finds a triangle rising above it, that
    triangle joins the side of the nearer contact and the crossing is found again; when
-   none rises, the crossing is on ``D`` and exact (to ``1e-3 s``). About 1.1-1.5 drops per
-   edge on the scans (igea, session 23).
+   none rises, the crossing is on ``D`` and exact (to ``1e-3 s``). 1.1-1.9 true drops per
+   edge on the scans (1.4 on igea; session 23).
 4. The shadow's depth: the largest vertical gap between the ball's underside and the
    part at seven points evenly spaced along the XY segment between the two contacts (the
    part's top there: the highest triangle over the point).
@@ -34,10 +34,13 @@ matters (:func:`wedge_jump`). A fold narrower than ``jump`` between contacts but
 edge's ends touch beyond it, which is the usual case (the ends are ``s`` apart).
 
 On igea (155k faces, r = 4 mm, 0.18 mm grid) the search takes about 1.3 s on two cores
-(grid 0.5 s, crossings 0.6 s, shadows 0.2 s), where the per-sample search of
-:func:`conformill.pencil.best_centres` takes 5-6 s, and 91 % of that search's band
-centres lie within 0.1 mm of a fold point whose shadow is deeper than 0.15 h
-(``README``, "Pencil passes", session 23).
+(2.4 s of CPU: grid 0.5 s, crossings 0.6 s, shadows 0.2 s of wall), 0.31 of the CPU of
+the per-sample search of :func:`conformill.pencil.best_centres` on the same host, and 93 %
+of that search's band centres lie within 0.1 mm of a fold point whose shadow is deeper
+than 0.15 h (``benchmarks/bench_pencil.py --folds``; README, "Pencil passes", session 23).
+Where the part is steeper than about 78 deg the grid crosses the folds too rarely (a fold
+running down a wall projects to a short XY segment): :func:`conformill.pencil.pencil_passes`
+searches the samples there one by one.
 """
 
 from __future__ import annotations

@@ -557,9 +557,7 @@ def pencil_passes(cutter, V, F, h: float, tol: float, *, search: str = "samples"
     areas = _face_areas(V, F)
     area = float(areas.sum())
     if search == "folds":
-        from conformill.folds import fold_points, wedge_jump
-
-        from conformill.folds import _MAX_GRID
+        from conformill.folds import _MAX_GRID, fold_points, wedge_jump
 
         lo = V[:, :2].min(axis=0) - cutter.radius
         hi = V[:, :2].max(axis=0) + cutter.radius

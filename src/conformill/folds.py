@@ -240,6 +240,12 @@ def _shadows(C, QA, QB, r, T, gx0, gy0, cell, ncx, ncy, cstart, ctri, npts):
     return out
 
 
+def _grid_box(cutter):
+    """XY corners ``(lo, hi)`` of the fold grid: the part's XY box grown by the ball's radius."""
+    box = cutter._B[:, :4]
+    return box[:, :2].min(axis=0) - cutter.radius, box[:, 2:].max(axis=0) + cutter.radius
+
+
 def fold_points(cutter, spacing: float, jump: float) -> FoldPoints:
     """Fold points of the drop surface on an XY grid of ``spacing`` over the part.
 
@@ -266,9 +272,7 @@ def fold_points(cutter, spacing: float, jump: float) -> FoldPoints:
         if not (np.isfinite(v) and v > 0):
             raise PlanningError(f"pencil: {name} must be a positive number, got {v}")
     r = cutter.radius
-    box = cutter._B[:, :4]
-    lo = box[:, :2].min(axis=0) - r
-    hi = box[:, 2:].max(axis=0) + r
+    lo, hi = _grid_box(cutter)
     nx, ny = (int(v) for v in np.ceil((hi - lo) / spacing) + 1)
     if nx * ny > _MAX_GRID:
         raise PlanningError(f"pencil: a fold grid of {spacing:g} mm over {hi[0] - lo[0]:.1f} x {hi[1] - lo[1]:.1f} mm "

@@ -557,10 +557,9 @@ def pencil_passes(cutter, V, F, h: float, tol: float, *, search: str = "samples"
     areas = _face_areas(V, F)
     area = float(areas.sum())
     if search == "folds":
-        from conformill.folds import _MAX_GRID, fold_points, wedge_jump
+        from conformill.folds import _MAX_GRID, _grid_box, fold_points, wedge_jump
 
-        lo = V[:, :2].min(axis=0) - cutter.radius
-        hi = V[:, :2].max(axis=0) + cutter.radius
+        lo, hi = _grid_box(cutter)
         plane = float(np.prod(hi - lo))
         if density * plane > 0.9 * _MAX_GRID:
             log.warning("pencil: %.0f mm^2 of XY at %.3g grid points per mm^2 would be %.3gM points; using %.3g "

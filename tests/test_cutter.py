@@ -742,6 +742,35 @@ class TestSettle:
             s = np.array([_contact_slope(x, y, zz, t, cut._T, a, b) for (x, y), zz, t, (a, b) in zip(xy, z, tri, v)])
             np.testing.assert_allclose(s[smooth], 0.5 * (fd_r + fd_l)[smooth], atol=1e-4)
 
+    @pytest.mark.parametrize("max_iter", [4, 1])
+    def test_settle_pieces_is_settle_per_piece(self, max_iter):
+        # one batch gives the same points as one call per piece: rows across the V-groove's
+        # crease of several lengths, a lone point, a piece without XY extent, and pieces
+        # whose ends meet (the step between pieces is no move and is not settled)
+        a = np.radians(30.0)
+        m = syn.v_groove()
+        cut = BallCutter(m.V, m.F, R_BALL)
+        rng = np.random.default_rng(7)
+        pieces = []
+        for k in range(40):
+            x = np.sort(rng.uniform(-6.0, 6.0, rng.integers(2, 12)))
+            y = np.full_like(x, rng.uniform(-8.0, 8.0))
+            pieces.append(np.column_stack([x, y, np.abs(x) * np.tan(a) + R_BALL / np.cos(a)]))
+        pieces.insert(3, np.array([[0.5, 1.0, 9.0]]))
+        pieces.insert(7, np.array([[-2.0, 0.0, 9.0], [-2.0, 0.0, 9.5]]))
+        pieces.insert(9, pieces[8][::-1].copy())  # starts where the previous one ends
+        pieces.insert(12, np.column_stack([[-3.0, 3.0], [-9.0, 9.0], [9.0, 9.0]]))  # ends across the crease
+        got, n, left = cut.settle_pieces(pieces, 0.005, max_iter=max_iter)
+        ref = [cut.settle(p, 0.005, max_iter=max_iter) for p in pieces]
+        assert len(got) == len(pieces)
+        for g, (q, _, _) in zip(got, ref):
+            np.testing.assert_array_equal(g, q)
+        assert n == sum(x[1] for x in ref) > 0 and left == sum(x[2] for x in ref)
+        assert max_iter > 1 or left > 0
+        assert cut.settle_pieces([], 0.005) == ([], 0, 0)
+        with pytest.raises(PlanningError, match="settle tolerance must be positive"):
+            cut.settle_pieces(pieces, -1.0)
+
     def test_contacts_of_short_inputs(self):
         m = syn.plane(size=20.0, spacing=5.0)
         cut = BallCutter(m.V, m.F, R_BALL)

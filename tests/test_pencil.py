@@ -238,6 +238,46 @@ class TestChains:
         np.testing.assert_array_equal(passes[1][:, 0], [50.0, 51.0])
 
 
+    def test_order_and_link_is_the_greedy_nearest_end(self):
+        # against the plain greedy (numpy's argmin over the (n, 2) end distances: the first
+        # of equal ones), on chains with shared and repeated ends (ties)
+        rng = np.random.default_rng(3)
+        grid = rng.integers(0, 6, (120, 2, 2)).astype(float)  # many equal ends
+        chains = [np.column_stack([np.linspace(e[0, 0], e[1, 0], 4), np.linspace(e[0, 1], e[1, 1], 4),
+                                   np.arange(4.0) + 10 * i]) for i, e in enumerate(grid)]
+        chains += [np.array([[2.0, 2.0, -1.0]]), np.array([[2.0, 2.0, -2.0]])]  # lone centres on a tie
+        want, cur, at = [], None, np.array([2.5, 2.5])
+        ends = np.array([[c[0, :2], c[-1, :2]] for c in chains])
+        left = np.ones(len(chains), dtype=bool)
+        for _ in chains:
+            d = np.linalg.norm(ends - at, axis=2)
+            d[~left] = np.inf
+            i, side = np.unravel_index(int(np.argmin(d)), d.shape)
+            c = chains[i] if side == 0 else chains[i][::-1]
+            left[i] = False
+            if cur is not None and d[i, side] <= 1.5:
+                cur.append(c)
+            else:
+                if cur is not None:
+                    want.append(np.vstack(cur))
+                cur = [c]
+            at = c[-1, :2]
+        want.append(np.vstack(cur))
+        got = order_and_link(chains, start_xy=(2.5, 2.5), link_max=1.5)
+        assert 1 < len(got) == len(want)
+        for g, w in zip(got, want):
+            np.testing.assert_array_equal(g, w)
+
+    def test_steep_samples_are_rows_of_the_full_draw(self):
+        m = syn.sphere_cap(R=12.0, radius_xy=11.5, spacing=0.8, jitter=0.1)
+        P, N, f = surface_samples(m.V, m.F, 20.0, seed=2)
+        Ps, Ns, fs = surface_samples(m.V, m.F, 20.0, seed=2, below_nz=0.4)
+        steep = N[:, 2] < 0.4
+        assert 0 < steep.sum() < len(P)
+        np.testing.assert_array_equal(Ps, P[steep])
+        np.testing.assert_array_equal(Ns, N[steep])
+        np.testing.assert_array_equal(fs, f[steep])
+
 @pytest.mark.parametrize("search", pencil.SEARCHES)
 def test_plan_with_pencil_adds_passes_after_the_same_program(tmp_path, search):
     # the pattern's passes are those of the plan without the option; the pencil passes

@@ -1212,9 +1212,57 @@ class BallCutter:
         tri = self._hints(contacts, len(P))
         if len(P) < 2:
             return (P.copy(), 0, 0, tri) if want else (P.copy(), 0, 0)
-        half = 0.5 * tol
+        d = np.diff(P, axis=0)
+        P, tri, inserted, left, _ = self._settle(P, tri, np.hypot(d[:, 0], d[:, 1]) > 1e-9, tol, steps, max_iter,
+                                                 np.zeros(0, dtype=np.int64))
+        return (P, inserted, left, tri) if want else (P, inserted, left)
+
+    def settle_pieces(self, pieces, tol: float, steps: int = 3, max_iter: int = 4) -> tuple:
+        """:meth:`settle` on each polyline of ``pieces``, in one batch of kernel calls.
+
+        The same points as one :meth:`settle` call per piece (a move is settled on its
+        own; the step from one piece's end to the next piece's start is no move), without
+        the Python and kernel overhead of a call per piece: the pencil stage settles
+        thousands of short chains (igea: 2800 chains in 0.47 s one by one).
+
+        Parameters
+        ----------
+        pieces : list of (k_i, 3) float64
+        tol, steps, max_iter
+            As for :meth:`settle`.
+
+        Returns
+        -------
+        pieces : list of (k_i', 3) float64
+        inserted, unresolved : int
+            Summed over the pieces.
+        """
+        tol = float(tol)
+        if not (math.isfinite(tol) and tol > 0):
+            raise PlanningError(f"cutter: settle tolerance must be positive, got {tol}")
+        steps = int(steps)
+        if steps < 1:
+            raise PlanningError(f"cutter: settle needs at least one step, got {steps}")
+        if not pieces:
+            return [], 0, 0
+        arrs = [_as_points(c, 3, "centers") for c in pieces]
+        lens = np.array([len(c) for c in arrs], dtype=np.int64)
+        starts = np.concatenate([[0], np.cumsum(lens)[:-1]]).astype(np.int64)
+        P = np.vstack(arrs)
         d = np.diff(P, axis=0)
         check = np.hypot(d[:, 0], d[:, 1]) > 1e-9
+        check[starts[1:] - 1] = False  # from one piece's end to the next one's start
+        P, _, inserted, left, starts = self._settle(P, np.full(len(P), -1, dtype=np.int64), check, tol, steps,
+                                                    max_iter, starts)
+        bounds = np.append(starts, len(P))
+        return [P[bounds[i]:bounds[i + 1]] for i in range(len(arrs))], inserted, left
+
+    def _settle(self, P, tri, check, tol, steps, max_iter, track):
+        """The rounds of :meth:`settle` on the moves flagged in ``check``; ``track``: indices
+        of input points whose positions in the output are returned too."""
+        if len(P) < 2:
+            return P.copy(), tri, 0, 0, track
+        half = 0.5 * tol
         inserted = 0
         for _ in range(max_iter):
             seg = np.flatnonzero(check)
@@ -1246,15 +1294,16 @@ class BallCutter:
                 break
             new = P[seg] + t[:, None] * v
             new[:, 2] = z
-            P, check = _insert(P, seg[keep], new[keep])
-            tri = np.insert(tri, seg[keep] + 1, zt[keep])
+            after = seg[keep]
+            P, check = _insert(P, after, new[keep])
+            track = track + np.searchsorted(after, track, side="left")  # inserts before each point
+            tri = np.insert(tri, after + 1, zt[keep])
             d = np.diff(P, axis=0)
             check &= np.hypot(d[:, 0], d[:, 1]) > 1e-9
             inserted += int(keep.sum())
         else:
-            left = int(check.sum())
-            return (P, inserted, left, tri) if want else (P, inserted, left)
-        return (P, inserted, 0, tri) if want else (P, inserted, 0)
+            return P, tri, inserted, int(check.sum()), track
+        return P, tri, inserted, 0, track
 
     def _hints(self, contacts, k):
         """Contact-triangle hints as a new int64 ``(k,)`` array (-1 for none), checked:

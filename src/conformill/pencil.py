@@ -271,7 +271,7 @@ def _face_areas(V, F) -> np.ndarray:
     return 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
 
 
-def surface_samples(V, F, density: float, seed: int = 0, areas=None):
+def surface_samples(V, F, density: float, seed: int = 0, areas=None, below_nz: float | None = None):
     """Area-uniform samples with vertex normals interpolated, facing the tool (``n_z > 0``).
 
     Parameters
@@ -283,6 +283,9 @@ def surface_samples(V, F, density: float, seed: int = 0, areas=None):
     seed : int
     areas : (m,) float64, optional
         The faces' areas, when the caller has them.
+    below_nz : float, optional
+        Keep only the samples whose normal has ``n_z`` below this (the same samples, in the
+        same order, as those rows of the full output; only they are interpolated and sorted).
 
     Returns
     -------
@@ -303,13 +306,17 @@ def surface_samples(V, F, density: float, seed: int = 0, areas=None):
     u[flip], v[flip] = 1.0 - u[flip], 1.0 - v[flip]
     w = np.column_stack([1.0 - u - v, u, v])
     tri = F[f]
-    P = np.einsum("kj,kjd->kd", w, V[tri])
     VN = vertex_normals(V, F)
     N = np.einsum("kj,kjd->kd", w, VN[tri])
     ln = np.linalg.norm(N, axis=1)
     ok = ln > 0
     N[ok] /= ln[ok, None]
     up = ok & (N[:, 2] > 0)
+    if below_nz is not None:
+        up &= N[:, 2] < below_nz
+        sel = np.flatnonzero(up)
+        w, tri, N, f, up = w[sel], tri[sel], N[sel], f[sel], np.ones(len(sel), dtype=bool)
+    P = np.einsum("kj,kjd->kd", w, V[tri])
     # in cell order (1 mm): consecutive samples touch the same triangles (cache)
     key = np.lexsort((np.floor(P[:, 0]), np.floor(P[:, 1])))
     keep = key[up[key]]
@@ -440,25 +447,52 @@ def order_and_link(chains, start_xy, link_max: float):
     """
     if not chains:
         return []
-    ends = np.array([[c[0, :2], c[-1, :2]] for c in chains])  # (n, 2, 2)
-    left = np.ones(len(chains), dtype=bool)
-    at = np.asarray(start_xy, dtype=np.float64)[:2]
-    passes, cur = [], None
-    for _ in range(len(chains)):
-        d = np.linalg.norm(ends - at[None, None, :], axis=2)
-        d[~left] = np.inf
-        i, side = np.unravel_index(int(np.argmin(d)), d.shape)
-        c = chains[i] if side == 0 else chains[i][::-1]
-        left[i] = False
-        if cur is not None and d[i, side] <= link_max:
-            cur.append(c)
-        else:
-            if cur is not None:
-                passes.append(np.vstack(cur))
-            cur = [c]
-        at = c[-1, :2]
+    ends = np.ascontiguousarray([[c[0, :2], c[-1, :2]] for c in chains], dtype=np.float64)  # (n, 2, 2)
+    order, side, join = _order_ends(ends, np.asarray(start_xy, dtype=np.float64)[:2].copy(), float(link_max))
+    passes, cur = [], []
+    for i, sd, j in zip(order.tolist(), side.tolist(), join.tolist()):
+        if cur and not j:
+            passes.append(np.vstack(cur))
+            cur = []
+        cur.append(chains[i] if sd == 0 else chains[i][::-1])
     passes.append(np.vstack(cur))
     return passes
+
+
+@njit(cache=True)
+def _order_ends(ends, at, link_max):
+    """The greedy order of :func:`order_and_link`: per step the chain, its side (1: reversed)
+    and whether it joins the previous one; the nearest end first, ties to the lower index
+    (``np.argmin`` over the ``(n, 2)`` distances, which this replaced: 0.4 s of Python on
+    igea's 2800 chains)."""
+    n = ends.shape[0]
+    left = np.ones(n, dtype=np.bool_)
+    order = np.empty(n, dtype=np.int64)
+    side = np.empty(n, dtype=np.int64)
+    join = np.zeros(n, dtype=np.bool_)
+    ax, ay = at[0], at[1]
+    for k in range(n):
+        best = np.inf
+        bi = -1
+        bs = 0
+        for i in range(n):
+            if not left[i]:
+                continue
+            for sd in range(2):
+                dx = ends[i, sd, 0] - ax
+                dy = ends[i, sd, 1] - ay
+                d = math.sqrt(dx * dx + dy * dy)
+                if d < best or bi < 0:
+                    best = d
+                    bi = i
+                    bs = sd
+        left[bi] = False
+        order[k] = bi
+        side[k] = bs
+        join[k] = k > 0 and best <= link_max
+        ax = ends[bi, 1 - bs, 0]
+        ay = ends[bi, 1 - bs, 1]
+    return order, side, join
 
 
 @dataclass(frozen=True, eq=False)
@@ -571,13 +605,12 @@ def pencil_passes(cutter, V, F, h: float, tol: float, *, search: str = "samples"
         keep = fp.shadow > low * h
         # steep walls: a fold running down one projects to a short XY segment that few grid
         # edges cross; there the samples are searched one by one instead
-        P, N, faces = surface_samples(V, F, min(density, _MAX_SAMPLES / area), seed, areas=areas)
-        steep = N[:, 2] < _STEEP_NZ
-        C, rest, state = best_centres(cutter, P[steep], N[steep], faces[steep], low=low * h,
-                                      give_up=max(_GIVE_UP, high) * h)
+        P, N, faces = surface_samples(V, F, min(density, _MAX_SAMPLES / area), seed, areas=areas,
+                                      below_nz=_STEEP_NZ)
+        C, rest, state = best_centres(cutter, P, N, faces, low=low * h, give_up=max(_GIVE_UP, high) * h)
         useful = (state == 1) & (rest > low * h) & (rest <= high * h) & np.isfinite(C[:, 2])
         stats = {"search": "folds", **fp.stats, "fold_points": int(len(fp.centres)), "centres": int(keep.sum()),
-                 "steep_samples": int(steep.sum()), "steep_centres": int(useful.sum()),
+                 "steep_samples": int(len(P)), "steep_centres": int(useful.sum()),
                  "density_per_mm2": float(density), "low": float(low), "high": float(high)}
         say(0.7)
         return _passes_through(cutter, np.vstack([fp.centres[keep], C[useful]]), spacing, tol, min_chain, settle_tol,
@@ -616,13 +649,7 @@ def _passes_through(cutter, B, spacing, tol, min_chain, settle_tol, link_max, st
     chains = [B[c] for c in chain_points(B[:, :2], 3.3 * spacing) if len(c) >= min_chain]
     n_settled = 0
     if settle_tol > 0:
-        settled = []
-        for c in chains:
-            if len(c) >= 2:
-                c, n_in, _ = cutter.settle(c, settle_tol)
-                n_settled += n_in
-            settled.append(c)
-        chains = settled
+        chains, n_settled, _ = cutter.settle_pieces(chains, settle_tol)
     say(0.9)
     # a lone centre (min_chain 1) joins its neighbours through the links; alone it is no move
     passes = [cutter.refine(p, tol) for p in order_and_link(chains, start_xy, link_max) if len(p) >= 2]

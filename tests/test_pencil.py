@@ -268,6 +268,36 @@ class TestChains:
         for g, w in zip(got, want):
             np.testing.assert_array_equal(g, w)
 
+    @pytest.mark.parametrize("spread", [1.0, 1e5])
+    def test_samples_are_numpys_to_the_bit(self, spread):
+        # the compiled interpolation and the counting sort against the plain numpy they
+        # replaced (einsum, norm, lexsort over 1 mm cells); ``spread`` 1e5 stretches the part
+        # over a plane too sparse for the counting sort (the stable argsort instead)
+        from conformill.geometry.differential import vertex_normals
+
+        m = syn.sphere_cap(R=12.0, radius_xy=11.5, spacing=0.8, jitter=0.1)
+        V = m.V * [spread, 1.0, 1.0]
+        P, N, f = surface_samples(V, m.F, 20.0 / spread, seed=5)
+        a = 0.5 * np.linalg.norm(np.cross(V[m.F[:, 1]] - V[m.F[:, 0]], V[m.F[:, 2]] - V[m.F[:, 0]]), axis=1)
+        n = int(round(20.0 / spread * a.sum()))
+        rng = np.random.default_rng(5)
+        cum = np.cumsum(a)
+        fr = np.minimum(np.searchsorted(cum, rng.random(n) * cum[-1], side="right"), len(m.F) - 1)
+        u, v = rng.random(n), rng.random(n)
+        flip = u + v > 1.0
+        u[flip], v[flip] = 1.0 - u[flip], 1.0 - v[flip]
+        w = np.column_stack([1.0 - u - v, u, v])
+        Pr = np.einsum("kj,kjd->kd", w, V[m.F[fr]])
+        Nr = np.einsum("kj,kjd->kd", w, vertex_normals(V, m.F)[m.F[fr]])
+        ln = np.linalg.norm(Nr, axis=1)
+        Nr /= ln[:, None]
+        key = np.lexsort((np.floor(Pr[:, 0]), np.floor(Pr[:, 1])))
+        keep = key[Nr[key, 2] > 0]
+        assert 1000 < len(keep) <= n
+        np.testing.assert_array_equal(P, Pr[keep])
+        np.testing.assert_array_equal(N, Nr[keep])
+        np.testing.assert_array_equal(f, fr[keep])
+
     def test_steep_samples_are_rows_of_the_full_draw(self):
         m = syn.sphere_cap(R=12.0, radius_xy=11.5, spacing=0.8, jitter=0.1)
         P, N, f = surface_samples(m.V, m.F, 20.0, seed=2)

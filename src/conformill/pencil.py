@@ -285,7 +285,7 @@ def surface_samples(V, F, density: float, seed: int = 0, areas=None, below_nz: f
         The faces' areas, when the caller has them.
     below_nz : float, optional
         Keep only the samples whose normal has ``n_z`` below this (the same samples, in the
-        same order, as those rows of the full output; only they are interpolated and sorted).
+        same order, as those rows of the full output).
 
     Returns
     -------
@@ -304,23 +304,67 @@ def surface_samples(V, F, density: float, seed: int = 0, areas=None, below_nz: f
     u, v = rng.random(n), rng.random(n)
     flip = u + v > 1.0
     u[flip], v[flip] = 1.0 - u[flip], 1.0 - v[flip]
-    w = np.column_stack([1.0 - u - v, u, v])
-    tri = F[f]
-    VN = vertex_normals(V, F)
-    N = np.einsum("kj,kjd->kd", w, VN[tri])
-    ln = np.linalg.norm(N, axis=1)
-    ok = ln > 0
-    N[ok] /= ln[ok, None]
-    up = ok & (N[:, 2] > 0)
+    P, N, up = _interpolate(V, vertex_normals(V, F), F, f, u, v)
     if below_nz is not None:
         up &= N[:, 2] < below_nz
-        sel = np.flatnonzero(up)
-        w, tri, N, f, up = w[sel], tri[sel], N[sel], f[sel], np.ones(len(sel), dtype=bool)
-    P = np.einsum("kj,kjd->kd", w, V[tri])
-    # in cell order (1 mm): consecutive samples touch the same triangles (cache)
-    key = np.lexsort((np.floor(P[:, 0]), np.floor(P[:, 1])))
+    # in cell order (1 mm, row by row): consecutive samples touch the same triangles (cache)
+    key = _cell_order(P) if n else np.zeros(0, dtype=np.int64)
     keep = key[up[key]]
     return P[keep], N[keep], f[keep]
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _interpolate(V, VN, F, f, u, v):
+    """Points and unit normals (vertex normals interpolated) at barycentric ``(1 - u - v, u, v)``
+    of faces ``f``, and whether each normal is defined and faces the tool. The same bits as
+    numpy's ``einsum("kj,kjd->kd")`` and ``norm`` (a sum of three products, in order), which
+    this replaced (0.24 s of 0.58 s for igea's 695k samples)."""
+    n = len(f)
+    P = np.empty((n, 3))
+    N = np.empty((n, 3))
+    up = np.empty(n, dtype=np.bool_)
+    for k in prange(n):
+        a, b, c = F[f[k], 0], F[f[k], 1], F[f[k], 2]
+        w0 = 1.0 - u[k] - v[k]
+        w1 = u[k]
+        w2 = v[k]
+        for d in range(3):
+            P[k, d] = w0 * V[a, d] + w1 * V[b, d] + w2 * V[c, d]
+            N[k, d] = w0 * VN[a, d] + w1 * VN[b, d] + w2 * VN[c, d]
+        ln = math.sqrt(N[k, 0] * N[k, 0] + N[k, 1] * N[k, 1] + N[k, 2] * N[k, 2])
+        if ln > 0:
+            N[k, 0] /= ln
+            N[k, 1] /= ln
+            N[k, 2] /= ln
+        up[k] = ln > 0 and N[k, 2] > 0
+    return P, N, up
+
+
+def _cell_order(P) -> np.ndarray:
+    """Indices of ``P`` sorted by 1 mm cell, row by row (``floor(y)``, then ``floor(x)``), ties
+    in index order: ``np.lexsort((floor(x), floor(y)))``, by a counting sort."""
+    fx, fy = np.floor(P[:, 0]), np.floor(P[:, 1])
+    ix = (fx - fx.min()).astype(np.int64)
+    iy = (fy - fy.min()).astype(np.int64)
+    nx = int(ix.max()) + 1
+    ncell = nx * (int(iy.max()) + 1)
+    if ncell > 4 * len(P) + 1_000_000:  # a sparse spread (a huge part): a stable sort
+        return np.argsort(iy * nx + ix, kind="stable")
+    return _counting_order(iy * nx + ix, ncell)
+
+
+@njit(cache=True, nogil=True)
+def _counting_order(key, ncell):
+    cnt = np.zeros(ncell + 1, dtype=np.int64)
+    for k in key:
+        cnt[k + 1] += 1
+    for i in range(ncell):
+        cnt[i + 1] += cnt[i]
+    out = np.empty(len(key), dtype=np.int64)
+    for i in range(len(key)):
+        out[cnt[key[i]]] = i
+        cnt[key[i]] += 1
+    return out
 
 
 @njit(cache=True)

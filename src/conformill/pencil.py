@@ -70,7 +70,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from numba import njit, prange
+from numba import get_num_threads, njit, prange
 
 from conformill.cutter import _drop_point, _set_drop
 from conformill.errors import PlanningError
@@ -462,9 +462,10 @@ def chain_points(xy, link: float, k: int = 16):
     if len(xy) < 2:
         return [np.arange(len(xy))] if len(xy) else []
     tree = cKDTree(xy)
-    dist, nbr = tree.query(xy, k=min(k + 1, len(xy)))
+    workers = get_num_threads()  # the plan's --threads
+    dist, nbr = tree.query(xy, k=min(k + 1, len(xy)), workers=workers)
     dist, nbr = dist[:, 1:], nbr[:, 1:]  # without the point itself
-    degree = tree.query_ball_point(xy, link, return_length=True)
+    degree = tree.query_ball_point(xy, link, return_length=True, workers=workers)
     starts = np.argsort(degree, kind="stable")
     seq, offs = _chains(np.ascontiguousarray(nbr, dtype=np.int64), np.ascontiguousarray(dist), starts, float(link))
     return [seq[offs[i]:offs[i + 1]] for i in range(len(offs) - 1)]

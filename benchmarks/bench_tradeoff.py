@@ -15,7 +15,8 @@ length and the time for the knobs that densify the program:
   the pattern (:mod:`conformill.pencil`), found by the default search (per surface sample)
   at the default 30 or the given samples per mm^2; ``pencil folds`` / ``pencil samples``: by
   the named search (``--pencil-search``; session 23's runs, on f73ad9e, had ``folds`` as
-  the default, so their ``pencil`` rows are the fold search);
+  the default, so their ``pencil`` rows are the fold search); ``pencil folds, settle off`` /
+  ``settle 1``: the fold search over a pattern with ``Job.settle`` 0 / 1 (session 24);
 * ``fine``: the same job on the same surface split once more (every triangle into four at its
   edge midpoints, :func:`conformill.mesh.split.split_midpoints`; a planar split, so the surface and the
   drop-cutter's heights are the same): the per-vertex quadratic fit then works at half the
@@ -66,6 +67,8 @@ VARIANTS = {
     "pencil, density 43": ({"pencil": True, "pencil_density": 43.0}, 1.0, False),
     "pencil folds": ({"pencil": True, "pencil_search": "folds"}, 1.0, False),
     "pencil samples": ({"pencil": True, "pencil_search": "samples"}, 1.0, False),
+    "pencil folds, settle off": ({"pencil": True, "pencil_search": "folds", "settle": 0.0}, 1.0, False),
+    "pencil folds, settle 1": ({"pencil": True, "pencil_search": "folds", "settle": 1.0}, 1.0, False),
 }
 
 

@@ -760,6 +760,8 @@ class TestSettle:
         pieces.insert(7, np.array([[-2.0, 0.0, 9.0], [-2.0, 0.0, 9.5]]))
         pieces.insert(9, pieces[8][::-1].copy())  # starts where the previous one ends
         pieces.insert(12, np.column_stack([[-3.0, 3.0], [-9.0, 9.0], [9.0, 9.0]]))  # ends across the crease
+        pieces.insert(0, np.empty((0, 3)))  # empty pieces, first and last
+        pieces.append(np.empty((0, 3)))
         got, n, left = cut.settle_pieces(pieces, 0.005, max_iter=max_iter)
         ref = [cut.settle(p, 0.005, max_iter=max_iter) for p in pieces]
         assert len(got) == len(pieces)

@@ -1251,7 +1251,8 @@ class BallCutter:
         P = np.vstack(arrs)
         d = np.diff(P, axis=0)
         check = np.hypot(d[:, 0], d[:, 1]) > 1e-9
-        check[starts[1:] - 1] = False  # from one piece's end to the next one's start
+        b = starts[1:]
+        check[b[(b > 0) & (b < len(P))] - 1] = False  # from one piece's end to the next one's start
         P, _, inserted, left, starts = self._settle(P, np.full(len(P), -1, dtype=np.int64), check, tol, steps,
                                                     max_iter, starts)
         bounds = np.append(starts, len(P))

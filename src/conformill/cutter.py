@@ -1202,12 +1202,7 @@ class BallCutter:
             ``contacts`` not one integer per centre.
         """
         P = _as_points(centers, 3, "centers")
-        tol = float(tol)
-        if not (math.isfinite(tol) and tol > 0):
-            raise PlanningError(f"cutter: settle tolerance must be positive, got {tol}")
-        steps = int(steps)
-        if steps < 1:
-            raise PlanningError(f"cutter: settle needs at least one step, got {steps}")
+        tol, steps = _settle_args(tol, steps)
         want = contacts is not None
         tri = self._hints(contacts, len(P))
         if len(P) < 2:
@@ -1237,12 +1232,7 @@ class BallCutter:
         inserted, unresolved : int
             Summed over the pieces.
         """
-        tol = float(tol)
-        if not (math.isfinite(tol) and tol > 0):
-            raise PlanningError(f"cutter: settle tolerance must be positive, got {tol}")
-        steps = int(steps)
-        if steps < 1:
-            raise PlanningError(f"cutter: settle needs at least one step, got {steps}")
+        tol, steps = _settle_args(tol, steps)
         if not pieces:
             return [], 0, 0
         arrs = [_as_points(c, 3, "centers") for c in pieces]
@@ -1375,6 +1365,17 @@ class BallCutter:
         out = P.copy()
         out[:, 2] -= self.radius
         return out
+
+
+def _settle_args(tol, steps):
+    """``tol`` and ``steps`` of :meth:`BallCutter.settle`, checked."""
+    tol = float(tol)
+    if not (math.isfinite(tol) and tol > 0):
+        raise PlanningError(f"cutter: settle tolerance must be positive, got {tol}")
+    steps = int(steps)
+    if steps < 1:
+        raise PlanningError(f"cutter: settle needs at least one step, got {steps}")
+    return tol, steps
 
 
 def _insert(P, after, newpts):

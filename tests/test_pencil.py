@@ -339,3 +339,52 @@ def test_plan_with_pencil_adds_passes_after_the_same_program(tmp_path, search):
         left[name] = verify(m, read_gcode(path), R, samples=crease).remaining
     np.testing.assert_allclose(left["pencil"], R * (1 / np.cos(A) - 1), atol=2e-4)  # G-code rounds to 0.1 um
     assert left["base"].max() > left["pencil"].max() + 0.01  # the rows alone leave more between them
+
+
+@pytest.mark.parametrize("search", pencil.SEARCHES)
+def test_plan_searches_beside_the_pattern_for_the_same_program(search):
+    # with two numba threads the plan runs the pencil's search beside the pattern stage
+    # (pencil.BackgroundChains), with one in line after it: the same passes, point for point
+    import numba
+
+    from conformill.passes import threads_can_overlap
+
+    m = syn.v_groove(a_deg=8.0, half=10.0, step=0.5)
+    job = Job(pattern="zigzag", tool_radius=R, scallop=0.1, tolerance=0.01, pencil=True, pencil_search=search)
+    n = numba.get_num_threads()
+    if n < 2:
+        pytest.skip("one numba thread: nothing runs beside")
+    try:
+        numba.set_num_threads(1)
+        one = plan(m, job)
+    finally:
+        numba.set_num_threads(n)
+    two = plan(m, job)
+    assert "pencil_busy" not in one.report["timings_s"]
+    assert ("pencil_busy" in two.report["timings_s"]) == threads_can_overlap()
+    assert len(one.toolpath.passes) == len(two.toolpath.passes) and one.toolpath.pass_ids == two.toolpath.pass_ids
+    for a, b in zip(one.toolpath.passes, two.toolpath.passes):
+        np.testing.assert_array_equal(a, b)
+    assert one.report["pencil"] == two.report["pencil"]
+
+
+def test_background_search_stops_and_reports_errors():
+    # cancelled before the cutter is there: no search, and result() says so; an error in
+    # the search reaches the caller's thread
+    m = syn.v_groove(a_deg=8.0, half=10.0, step=0.5)
+    import threading
+
+    gate = threading.Event()
+    bg = pencil.BackgroundChains(lambda: (gate.wait(), BallCutter(m.V, m.F, R))[1], m.V, m.F, 0.1)
+    bg._stop.set()
+    gate.set()
+    bg.cancel()
+    with pytest.raises(RuntimeError, match="cancelled"):
+        bg.result()
+    bg = pencil.BackgroundChains(lambda: BallCutter(m.V, m.F, R), m.V, m.F, -1.0)
+    with pytest.raises(PlanningError, match="scallop must be a positive number"):
+        bg.result()
+    with pencil.BackgroundChains(lambda: BallCutter(m.V, m.F, R), m.V, m.F, 0.1) as bg:
+        found = bg.result()
+    assert found.chains and found.stats["chains"] == len(found.chains)
+

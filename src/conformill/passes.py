@@ -117,6 +117,7 @@ class PassBuilder:
         self._error = None
         self._cancel = False
         self._thread = None
+        self._cutter_ready = threading.Event()  # set once the worker built the cutter (or failed)
         self._held = []  # pieces handed over, when not threaded (cut in finish())
         # progress of the cutter in dense samples of the pieces: handed over (caller's
         # thread) and cut (the worker's, counted when a pass's batch is done)
@@ -140,6 +141,12 @@ class PassBuilder:
             return
         self._raise()
         self._queue.put(piece)
+
+    def wait_cutter(self):
+        """The worker's cutter once it is built (threaded builders only; ``None`` when the
+        worker failed or was stopped first)."""
+        self._cutter_ready.wait()
+        return self.cutter
 
     def fraction_cut(self) -> float:
         """Share of the pieces handed over so far whose CC points are cut, by their dense
@@ -212,6 +219,7 @@ class PassBuilder:
                 t0 = time.perf_counter()
                 self.cutter = self._make_cutter()  # its index, while the map is solved
                 self.timings["cutter"] += time.perf_counter() - t0
+            self._cutter_ready.set()
             while True:
                 piece = self._queue.get()
                 if piece is None:
@@ -223,6 +231,7 @@ class PassBuilder:
                 self._close()
         except BaseException as exc:  # handed to the caller's thread by finish() / add()
             self._error = exc
+            self._cutter_ready.set()
             while not ended:  # let finish() / abort() return: take the end marker
                 ended = self._queue.get() is None
 

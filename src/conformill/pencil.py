@@ -75,7 +75,8 @@ from numba import get_num_threads, njit, prange
 from conformill.cutter import _drop_point, _set_drop
 from conformill.errors import PlanningError
 
-__all__ = ["SEARCHES", "PencilResult", "best_centres", "pencil_passes", "surface_samples"]
+__all__ = ["SEARCHES", "PencilChains", "PencilResult", "best_centres", "link_chains", "pencil_chains",
+           "pencil_passes", "surface_samples"]
 
 log = logging.getLogger(__name__)
 
@@ -621,7 +622,49 @@ def pencil_passes(cutter, V, F, h: float, tol: float, *, search: str = "samples"
     At most 4M samples are drawn (and, with ``"folds"``, a grid of at most 14.4M points):
     on a larger part the density is lowered to fit, with a warning.
     """
-    for name, v in (("scallop", h), ("tolerance", tol), ("pencil density", density), ("link length", link_max)):
+    for name, v in (("tolerance", tol), ("link length", link_max)):
+        if not (np.isfinite(v) and v > 0):
+            raise PlanningError(f"pencil: {name} must be a positive number, got {v}")
+    say = progress or (lambda f: None)
+    found = pencil_chains(cutter, V, F, h, search=search, density=density, low=low, high=high, min_chain=min_chain,
+                          settle_tol=settle_tol, seed=seed, progress=lambda f: say(0.9 * f))
+    res = link_chains(cutter, found, tol, link_max, start_xy)
+    say(1.0)
+    return res
+
+
+@dataclass(frozen=True, eq=False)
+class PencilChains:
+    """The chains of centres of the pencil stage, before they are ordered and linked.
+
+    Attributes
+    ----------
+    chains : list of (k, 3) float64
+        Ball centres on the drop surface, each chain settled, in no cutting order.
+    stats : dict
+        As :attr:`PencilResult.stats`, without the figures of the passes.
+    """
+
+    chains: list
+    stats: dict = field(default_factory=dict)
+
+
+def pencil_chains(cutter, V, F, h: float, *, search: str = "samples", density: float = 30.0, low: float = 0.15,
+                  high: float = 1.0, min_chain: int = 1, settle_tol: float = 0.0, seed: int = 0, progress=None,
+                  cancelled=None) -> PencilChains | None:
+    """The search of :func:`pencil_passes` and its chains: everything but the order.
+
+    It needs neither the pattern's passes nor the tool's last position, so the pipeline
+    runs it beside the pattern stage where numba's threads allow
+    (:func:`conformill.passes.threads_can_overlap`). Parameters as for
+    :func:`pencil_passes`; ``cancelled``, a callable, is asked between the steps of the
+    search, and ``None`` is returned once it says true.
+
+    Returns
+    -------
+    PencilChains or None
+    """
+    for name, v in (("scallop", h), ("pencil density", density)):
         if not (np.isfinite(v) and v > 0):
             raise PlanningError(f"pencil: {name} must be a positive number, got {v}")
     if not (np.isfinite(low) and np.isfinite(high) and 0 <= low < high):
@@ -631,6 +674,7 @@ def pencil_passes(cutter, V, F, h: float, tol: float, *, search: str = "samples"
     if search not in SEARCHES:
         raise PlanningError(f"pencil: search must be one of {', '.join(SEARCHES)}, got {search!r}")
     say = progress or (lambda f: None)
+    stop = cancelled or (lambda: False)
     V = np.asarray(V, dtype=np.float64)
     F = np.asarray(F, dtype=np.int64)
     areas = _face_areas(V, F)
@@ -647,6 +691,8 @@ def pencil_passes(cutter, V, F, h: float, tol: float, *, search: str = "samples"
         spacing = 1.0 / math.sqrt(density)
         fp = fold_points(cutter, spacing, wedge_jump(cutter.radius, low * h))
         say(0.5)
+        if stop():
+            return None
         keep = fp.shadow > low * h
         # steep walls: a fold running down one projects to a short XY segment that few grid
         # edges cross; there the samples are searched one by one instead
@@ -657,9 +703,11 @@ def pencil_passes(cutter, V, F, h: float, tol: float, *, search: str = "samples"
         stats = {"search": "folds", **fp.stats, "fold_points": int(len(fp.centres)), "centres": int(keep.sum()),
                  "steep_samples": int(len(P)), "steep_centres": int(useful.sum()),
                  "density_per_mm2": float(density), "low": float(low), "high": float(high)}
-        say(0.7)
-        return _passes_through(cutter, np.vstack([fp.centres[keep], C[useful]]), spacing, tol, min_chain, settle_tol,
-                               link_max, start_xy, stats, say)
+        say(0.8)
+        if stop():
+            return None
+        return _chains_through(cutter, np.vstack([fp.centres[keep], C[useful]]), spacing, min_chain, settle_tol,
+                               stats)
     if density * area > _MAX_SAMPLES:
         log.warning("pencil: %.0f mm^2 at %.3g samples per mm^2 would be %.3gM samples; using %.3g per mm^2 "
                     "(at most %dM)", area, density, density * area / 1e6, _MAX_SAMPLES / area, _MAX_SAMPLES // 10**6)
@@ -672,20 +720,21 @@ def pencil_passes(cutter, V, F, h: float, tol: float, *, search: str = "samples"
     state = np.empty(k, dtype=np.int8)
     step = max(1, -(-k // 20))
     for a in range(0, k, step):
+        if stop():
+            return None
         C[a:a + step], rest[a:a + step], state[a:a + step] = best_centres(
             cutter, P[a:a + step], N[a:a + step], faces[a:a + step], low=low * h, give_up=max(_GIVE_UP, high) * h)
-        say(0.02 + 0.83 * min(a + step, k) / max(k, 1))
+        say(0.02 + 0.9 * min(a + step, k) / max(k, 1))
     useful = (state == 1) & (rest > low * h) & (rest <= high * h) & np.isfinite(C[:, 2])
     stats = {"search": "samples", "samples": int(k), "searched": int(np.count_nonzero(state > 0)),
              "centres": int(useful.sum()), "given_up": int(np.count_nonzero(state == 2)),
              "rounds_used_up": int(np.count_nonzero(state == 3)), "density_per_mm2": float(density),
              "low": float(low), "high": float(high)}
-    return _passes_through(cutter, C[useful], 1.0 / math.sqrt(density), tol, min_chain, settle_tol, link_max,
-                           start_xy, stats, say)
+    return _chains_through(cutter, C[useful], 1.0 / math.sqrt(density), min_chain, settle_tol, stats)
 
 
-def _passes_through(cutter, B, spacing, tol, min_chain, settle_tol, link_max, start_xy, stats, say) -> PencilResult:
-    """Thin the centres ``B (k, 3)``, chain them, settle, order and link, refine."""
+def _chains_through(cutter, B, spacing, min_chain, settle_tol, stats) -> PencilChains:
+    """Thin the centres ``B (k, 3)``, chain them, settle the chains."""
     # thin to a fifth of the sample spacing, chain within 3.3 spacings (0.03 / 0.5 mm on
     # igea's 43 per mm^2, the values measured there)
     kept = _thin(np.ascontiguousarray(B[:, :2]), np.argsort(B[:, 0], kind="stable"), 0.2 * spacing) \
@@ -695,11 +744,90 @@ def _passes_through(cutter, B, spacing, tol, min_chain, settle_tol, link_max, st
     n_settled = 0
     if settle_tol > 0:
         chains, n_settled, _ = cutter.settle_pieces(chains, settle_tol)
-    say(0.9)
+    return PencilChains(chains=chains, stats={**stats, "thinned": int(len(B)), "chains": len(chains),
+                                              "settled_points": int(n_settled)})
+
+
+def link_chains(cutter, found: PencilChains, tol: float, link_max: float, start_xy) -> PencilResult:
+    """Order the chains of :func:`pencil_chains` from ``start_xy``, link and refine them
+    (:func:`order_and_link`, :meth:`conformill.cutter.BallCutter.refine`); parameters as
+    for :func:`pencil_passes`."""
     # a lone centre (min_chain 1) joins its neighbours through the links; alone it is no move
-    passes = [cutter.refine(p, tol) for p in order_and_link(chains, start_xy, link_max) if len(p) >= 2]
-    say(1.0)
+    passes = [cutter.refine(p, tol) for p in order_and_link(found.chains, start_xy, link_max) if len(p) >= 2]
     feed = float(sum(np.linalg.norm(np.diff(p, axis=0), axis=1).sum() for p in passes))
-    stats = {**stats, "thinned": int(len(B)), "chains": len(chains), "passes": len(passes),
-             "cl_points": int(sum(len(p) for p in passes)), "feed_mm": feed, "settled_points": int(n_settled)}
+    stats = {**found.stats, "passes": len(passes), "cl_points": int(sum(len(p) for p in passes)), "feed_mm": feed}
     return PencilResult(passes=passes, stats=stats)
+
+
+class BackgroundChains:
+    """:func:`pencil_chains` in a worker thread, beside the pattern stage.
+
+    The search needs only the part and the ball, so it can run while the pattern stage
+    and the cutter work; on two cores it takes the CPU they leave idle. The chains are the
+    same as in the caller's thread (the search is a deterministic function of its inputs).
+
+    Parameters
+    ----------
+    get_cutter : callable
+        Waits for and returns the :class:`conformill.cutter.BallCutter` (``None``: the
+        search is not run).
+    args, kwargs
+        For :func:`pencil_chains` after the cutter.
+    """
+
+    def __init__(self, get_cutter, *args, **kwargs):
+        import threading
+
+        import numba
+
+        self._nthreads = numba.get_num_threads()  # thread-local in numba: hand it over
+        self._get_cutter, self._args, self._kwargs = get_cutter, args, kwargs
+        self._stop = threading.Event()
+        self._found, self._error = None, None
+        self.busy_s = 0.0
+        self.fraction = 0.0  # the search's progress, 0 to 1
+        self._thread = threading.Thread(target=self._run, name="conformill-pencil", daemon=True)
+        self._thread.start()
+
+    def _run(self):
+        import time
+
+        import numba
+
+        try:
+            numba.set_num_threads(self._nthreads)
+            cutter = self._get_cutter()
+            if cutter is None or self._stop.is_set():
+                return
+            t0 = time.perf_counter()
+            self._found = pencil_chains(cutter, *self._args, cancelled=self._stop.is_set,
+                                        progress=lambda f: setattr(self, "fraction", f), **self._kwargs)
+            self.busy_s = time.perf_counter() - t0
+        except BaseException as exc:  # handed to the caller by result()
+            self._error = exc
+
+    def result(self, wait=None) -> PencilChains:
+        """The chains, once the search is done (``wait(fraction)`` is called every 0.2 s
+        until then); raises what the search raised."""
+        while self._thread.is_alive():
+            if wait is not None:
+                wait(self.fraction)
+            self._thread.join(timeout=0.2)
+        if self._error is not None:
+            raise self._error
+        if self._found is None:
+            raise RuntimeError("pencil: the background search was cancelled or had no cutter")
+        return self._found
+
+    def cancel(self) -> None:
+        """Stop the search at its next step and wait for the thread (harmless when done)."""
+        self._stop.set()
+        self._thread.join()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.cancel()
+        return False
+

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import logging
 import time
-from contextlib import contextmanager
+from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -326,7 +326,15 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
     # the map is solved); the program is the same either way
     builder = PassBuilder(lambda: BallCutter(mesh.V, mesh.F, r), e, e_fwd, e_cvx, job.max_step, link_max,
                           threaded=threads_can_overlap(), settle_tol=job.settle * h)
-    with builder:  # stops the worker if a stage fails
+    background = None
+    if job.pencil and builder.threaded:
+        from conformill.pencil import BackgroundChains
+
+        # the pencil's search needs only the part and the ball: it runs beside the map and
+        # the pattern stage, on the cutter the worker builds (the same chains either way)
+        background = BackgroundChains(builder.wait_cutter, mesh.V, mesh.F, h, search=job.pencil_search,
+                                      density=job.pencil_density, settle_tol=job.settle * h)
+    with builder, (background or nullcontext()):  # stop the workers if a stage fails
         say("parameterize", 0.0)
         with timer("parameterize"):
             boundary = "rectangle" if job.pattern == "zigzag" else "circle"
@@ -402,16 +410,20 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
         n_settled, n_unsettled = builder.n_settled, builder.n_settle_unresolved
         pencil = None
         if job.pencil:
-            from conformill.pencil import pencil_passes
+            from conformill.pencil import link_chains, pencil_chains
 
             say("pencil", 0.0)
-            with timer("pencil"):
+            with timer("pencil"):  # beside the pattern stage: the wait for its search, and the links
                 cutter = builder.cutter if builder.cutter is not None else BallCutter(mesh.V, mesh.F, r)
                 start = passes[-1][-1, :2] if passes else mesh.V[:, :2].mean(axis=0)
-                pencil = pencil_passes(cutter, mesh.V, mesh.F, h, e, search=job.pencil_search,
-                                       density=job.pencil_density,
-                                       settle_tol=job.settle * h, link_max=link_max, start_xy=start,
-                                       progress=lambda f: say("pencil", f))
+                if background is not None:
+                    found = background.result(wait=lambda f: say("pencil", 0.9 * f))
+                    timer.t["pencil_busy"] = background.busy_s
+                else:
+                    found = pencil_chains(cutter, mesh.V, mesh.F, h, search=job.pencil_search,
+                                          density=job.pencil_density, settle_tol=job.settle * h,
+                                          progress=lambda f: say("pencil", 0.9 * f))
+                pencil = link_chains(cutter, found, e, link_max, start)
                 passes = passes + [cutter.tip(p) for p in pencil.passes]
                 pass_ids = pass_ids + [-1] * len(pencil.passes)
     toolpath = ToolPath(passes=passes, safe_z=safe_z, pass_ids=pass_ids)

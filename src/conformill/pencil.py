@@ -52,6 +52,12 @@ per sample), and the passes through them leave the same 1.024 h, for about 1/30 
 search's time (10.5 s against 287-367 s; session 21, measured with this search as a
 prototype before it moved here; README "Pencil passes").
 
+The stage is two steps: :func:`pencil_chains` (the search, the chains and their
+settling: it needs only the part and the ball, so the pipeline runs it in a worker thread
+beside the pattern stage, :class:`BackgroundChains`) and :func:`link_chains` (the cutting
+order from the pattern's last point, the links and the gouge-safe refinement);
+:func:`pencil_passes` runs both.
+
 The samples are drawn per unit area (``density``), with vertex normals interpolated (as
 ``verify`` judges). The passes need them dense: each centre found is a point of a pass,
 and the passes join centres that lie within 3.3 sample spacings of each other. On igea's

@@ -96,8 +96,9 @@ class Job:
         refined. On igea (contour, h = 0.01) it takes the reachable p99.9 from 1.256 h to
         1.018 h for 9 % more feed, and six of the eight scans measured within 1.05 h for
         2-20 % (see README, "Pencil passes"), at a cost growing with the area and
-        ``pencil_density`` (4.8 s on igea contour at 30 per mm^2 on a 2-CPU AMD EPYC host,
-        session 24; 7-8 s on session 21's Intel Xeon host).
+        ``pencil_density`` (3.7 s more on igea contour at 30 per mm^2 on a 2-CPU AMD EPYC
+        host, session 24, its search running beside the pattern stage; 7-8 s on session
+        21's Intel Xeon host).
     pencil_density : float
         Samples per mm^2 the pencil stage searches (30: 0.18 mm apart); with
         ``pencil_search = "folds"``, grid points per mm^2 of the XY plane.
@@ -106,9 +107,9 @@ class Job:
         ``"samples"`` (the best ball of each surface sample) or ``"folds"`` (the folds of
         the drop surface crossing an XY grid, :mod:`conformill.folds`, with the samples on
         steep walls searched one by one): on the scans the latter's stage took 18-51 %
-        less time (igea 2.7 against 4.8 s since session 24) and left the same or a lower
-        scallop on seven of eight, for 1-15 points more feed (README, "Pencil passes",
-        sessions 23-24).
+        less time (igea 2.1 against 3.7 s more than the default since session 24) and
+        left the same or a lower scallop on seven of eight, for 1-15 points more feed
+        (README, "Pencil passes", sessions 23-24).
     """
 
     pattern: str = "spiral"

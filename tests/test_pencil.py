@@ -388,3 +388,21 @@ def test_background_search_stops_and_reports_errors():
         found = bg.result()
     assert found.chains and found.stats["chains"] == len(found.chains)
 
+
+def test_a_failing_stage_stops_the_background_search(monkeypatch):
+    # the pattern stage fails while the pencil's search runs beside it: plan() raises the
+    # stage's error, and no search thread outlives it
+    import threading
+
+    import conformill.patterns.zigzag as zz
+
+    def fail(*a, **k):
+        raise PlanningError("side step collapses (test)")
+
+    monkeypatch.setattr(zz, "plan_zigzag", fail)
+    m = syn.v_groove(a_deg=8.0, half=10.0, step=0.5)
+    job = Job(pattern="zigzag", tool_radius=R, scallop=0.1, tolerance=0.01, pencil=True, pencil_search="folds")
+    with pytest.raises(PlanningError, match="collapses"):
+        plan(m, job)
+    assert not [t for t in threading.enumerate() if t.name in ("conformill-pencil", "conformill-cutter")]
+

@@ -20,7 +20,7 @@ from conformill.geometry.surface import DomainSurface
 from conformill.patterns.family import Planner
 from conformill.passes import PassBuilder, threads_can_overlap
 from conformill.planning.steps import check_params, side_interval
-from conformill.types import Mesh, PathParams, PlanResult, ToolPath
+from conformill.types import PENCIL_SEARCHES, Mesh, PathParams, PlanResult, ToolPath
 
 log = logging.getLogger(__name__)
 
@@ -171,8 +171,9 @@ def check_job(job: Job) -> None:
         raise PlanningError(f"fit must be 'mesh' or 'split', got {job.fit!r}")
     if not (np.isfinite(job.pencil_density) and job.pencil_density > 0):
         raise PlanningError(f"pencil-density must be a positive number, got {job.pencil_density}")
-    if job.pencil_search not in ("folds", "samples"):
-        raise PlanningError(f"pencil-search must be 'folds' or 'samples', got {job.pencil_search!r}")
+    if job.pencil_search not in PENCIL_SEARCHES:
+        raise PlanningError(f"pencil-search must be {' or '.join(map(repr, sorted(PENCIL_SEARCHES)))}, "
+                            f"got {job.pencil_search!r}")
 
 
 def face_normals(V: np.ndarray, F: np.ndarray):
@@ -328,13 +329,14 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
     builder = PassBuilder(lambda: BallCutter(mesh.V, mesh.F, r), e, e_fwd, e_cvx, job.max_step, link_max,
                           threaded=threads_can_overlap(), settle_tol=job.settle * h)
     background = None
+    search_args = (mesh.V, mesh.F, h)
+    search_kw = {"search": job.pencil_search, "density": job.pencil_density, "settle_tol": job.settle * h}
     if job.pencil and builder.threaded:
         from conformill.pencil import BackgroundChains
 
         # the pencil's search needs only the part and the ball: it runs beside the map and
         # the pattern stage, on the cutter the worker builds (the same chains either way)
-        background = BackgroundChains(builder.wait_cutter, mesh.V, mesh.F, h, search=job.pencil_search,
-                                      density=job.pencil_density, settle_tol=job.settle * h)
+        background = BackgroundChains(builder.wait_cutter, *search_args, **search_kw)
     with builder, (background or nullcontext()):  # stop the workers if a stage fails
         say("parameterize", 0.0)
         with timer("parameterize"):
@@ -421,8 +423,7 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
                     found = background.result(wait=lambda f: say("pencil", 0.9 * f))
                     timer.t["pencil_busy"] = background.busy_s
                 else:
-                    found = pencil_chains(cutter, mesh.V, mesh.F, h, search=job.pencil_search,
-                                          density=job.pencil_density, settle_tol=job.settle * h,
+                    found = pencil_chains(cutter, *search_args, **search_kw,
                                           progress=lambda f: say("pencil", 0.9 * f))
                 pencil = link_chains(cutter, found, e, link_max, start)
                 passes = passes + [cutter.tip(p) for p in pencil.passes]

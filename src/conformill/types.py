@@ -14,6 +14,8 @@ import numpy as np
 BoundaryKind = Literal["circle", "rectangle"]
 WeightKind = Literal["geodesic", "floater", "mean_value", "cotangent"]
 PatternKind = Literal["zigzag", "contour", "spiral"]
+#: The pencil stage's searches (:func:`conformill.pencil.pencil_passes`, ``Job.pencil_search``).
+PENCIL_SEARCHES = ("samples", "folds")
 
 
 @dataclass(frozen=True, eq=False)

@@ -71,6 +71,12 @@ Usage::
     python benchmarks/bench_raster.py --meshes igea choi --h 0.01 --md out.md
     python benchmarks/bench_raster.py --reverify out.json --keep DIR --md out2.md
         # verify the kept programs again (timings and lengths from the JSON)
+    python benchmarks/bench_raster.py --meshes igea --patterns zigzag contour --pencil folds
+        # conformill's programs with pencil passes (--pencil --pencil-search folds)
+
+``--pencil SEARCH`` plans every conformill program with ``--pencil --pencil-search SEARCH``
+(and ``--pencil-density D``, default 30), so that the table puts the programs that meet
+1.05 h on the scans beside the raster, timed in the same run.
 
 Needs opencamlib; the shared meshes (/work/shared/meshes or $CONFORMILL_MESHES) for
 everything but the shipped samples.
@@ -214,23 +220,38 @@ def warm_up():
     """Plan a small synthetic part once per pattern (numba cache loading is not timed)."""
     from conformill.mesh import synthetic
     from conformill.output.gcode import format_gcode
-    from conformill.pipeline import Job, plan
+    from conformill.pipeline import plan
 
     m = synthetic.sphere_cap(60.0, 20.0)
     for pat in PATTERNS:
-        res = plan(m, Job(pattern=pat, tool_radius=4.0, scallop=0.2, tolerance=0.01))
+        res = plan(m, _job(pat, 4.0, 0.2, 0.01))
         format_gcode(res.toolpath, feed=1000.0)
 
 
 #: conformill's ``--spacing`` for the compared programs (``--spacing`` of this script)
 SPACING = "adaptive"
+#: conformill's pencil search for the compared programs (``--pencil`` of this script; None: off)
+#: and its density (``--pencil-density``)
+PENCIL = None
+PENCIL_DENSITY = 30.0
+
+
+def _job(pattern, r, h, e, feed=1000.0):
+    from conformill.pipeline import Job
+
+    return Job(pattern=pattern, tool_radius=r, scallop=h, tolerance=e, feed=feed, spacing=SPACING,
+               pencil=PENCIL is not None, pencil_search=PENCIL or "samples", pencil_density=PENCIL_DENSITY)
+
+
+def _label(pattern):
+    return f"conformill {pattern}" + (f" + {PENCIL} pencil" if PENCIL else "")
 
 
 def conformill_program(mesh, pattern, r, h, e, path: Path, feed: float = 1000.0):
     from conformill.output.gcode import write_gcode
-    from conformill.pipeline import Job, plan
+    from conformill.pipeline import plan
 
-    job = Job(pattern=pattern, tool_radius=r, scallop=h, tolerance=e, feed=feed, spacing=SPACING)
+    job = _job(pattern, r, h, e, feed)
     t0 = time.perf_counter()
     c0 = time.process_time()
     res = plan(mesh, job)
@@ -303,16 +324,16 @@ def run_mesh(name, h, r, e, n_samples, folder: Path, log):
     # conformill first (it also gives the oriented mesh everything else uses)
     progs = {}
     for pat in PATTERNS:
-        p = folder / f"{mesh.name}_{pat}_h{h:g}.nc"
+        p = folder / (f"{mesh.name}_{pat}_h{h:g}" + (f"_pencil_{PENCIL}{PENCIL_DENSITY:g}" if PENCIL else "") + ".nc")
         try:
             res, st, wall, cpu = conformill_program(mesh, pat, r, h, e, p)
         except Exception as exc:  # a failing pattern is a row of the table, not the end of the run
             log(f"   {pat}: FAILED {type(exc).__name__}: {exc}")
-            rows.append({"program": f"conformill {pat}", "error": f"{type(exc).__name__}: {exc}"})
+            rows.append({"program": _label(pat), "error": f"{type(exc).__name__}: {exc}"})
             continue
         mesh = res.mesh
         progs[pat] = (p, res, st, wall, cpu)
-        log(f"   conformill {pat}: {wall:.2f} s wall, {cpu:.2f} s cpu, {st['passes']} passes, "
+        log(f"   {_label(pat)}: {wall:.2f} s wall, {cpu:.2f} s cpu, {st['passes']} passes, "
             f"{st['cut_points']} CL points")
     k1, k2 = _common.principal_curvatures(mesh)
     floor = _common.length_floor(mesh, k1, k2, h, r)
@@ -337,10 +358,10 @@ def run_mesh(name, h, r, e, n_samples, folder: Path, log):
     m_ocl = measure(mesh, p_ocl, r, h, e, samples, reach, ras["safe_z"])
     for pat, (p, res, st, wall, cpu) in progs.items():
         m = measure(mesh, p, r, h, e, samples, reach, res.toolpath.safe_z)
-        rows.append({"program": f"conformill {pat}", "wall_s": wall, "cpu_s": cpu, "cl_points": st["cut_points"],
-                     "passes": st["passes"], "ocl_ratio": ras["wall_s"] / wall, **m})
+        rows.append({"program": _label(pat), "file": p.name, "wall_s": wall, "cpu_s": cpu,
+                     "cl_points": st["cut_points"], "passes": st["passes"], "ocl_ratio": ras["wall_s"] / wall, **m})
         log("   " + fmt_row(rows[-1], h, floor["floor_mm"]))
-    rows.append({"program": "OpenCAMLib raster", "wall_s": ras["wall_s"], "cpu_s": ras["cpu_s"],
+    rows.append({"program": "OpenCAMLib raster", "file": p_ocl.name, "wall_s": ras["wall_s"], "cpu_s": ras["cpu_s"],
                  "cl_points": ras["cl_points"], "passes": len(ras["runs"]), "ocl_ratio": 1.0, **m_ocl})
     log("   " + fmt_row(rows[-1], h, floor["floor_mm"]))
     return {"mesh": mesh.name, "faces": int(mesh.n_faces), "extent_mm": ext, "scale": info["scale"],
@@ -427,8 +448,11 @@ def reverify(old: dict, folder: Path, log) -> dict:
         if "error" in row:
             new["rows"].append(row)
             continue
-        tag = "ocl" if row["program"].startswith("OpenCAMLib") else row["program"].split()[-1]
-        p = folder / f"{old['mesh']}_{tag}_h{h:g}.nc"
+        if "file" in row:
+            p = folder / row["file"]
+        else:  # written before the rows named their files
+            tag = "ocl" if row["program"].startswith("OpenCAMLib") else row["program"].split()[-1]
+            p = folder / f"{old['mesh']}_{tag}_h{h:g}.nc"
         safe = float(mesh.V[:, 2].max()) + 5.0
         m = measure(mesh, p, r, h, e, samples, reach, safe)
         new["rows"].append({**row, **{k: v for k, v in m.items() if k != "rs274"}})
@@ -437,6 +461,7 @@ def reverify(old: dict, folder: Path, log) -> dict:
 
 
 def main(argv=None) -> int:
+    global SPACING, PATTERNS, PENCIL, PENCIL_DENSITY
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="h = 0.1 on two small meshes, 100k samples")
     ap.add_argument("--meshes", nargs="*", default=None, help=f"of {', '.join(_common.MESH_FILES)}")
@@ -447,13 +472,19 @@ def main(argv=None) -> int:
     ap.add_argument("--keep", default=None, help="folder for the programs (default: a temporary one)")
     ap.add_argument("--spacing", default="adaptive", choices=["adaptive", "paper", "local"],
                     help="conformill's --spacing (default adaptive)")
+    ap.add_argument("--patterns", nargs="*", default=list(PATTERNS), choices=list(PATTERNS),
+                    help="conformill's patterns to run (default all three)")
+    ap.add_argument("--pencil", default=None, choices=["samples", "folds"],
+                    help="plan conformill's programs with --pencil --pencil-search SEARCH (default: no pencil)")
+    ap.add_argument("--pencil-density", type=float, default=30.0, help="conformill's --pencil-density (default 30)")
     ap.add_argument("--md", default=None, help="write the tables as Markdown here")
     ap.add_argument("--json", default=None, help="write all figures as JSON here")
     ap.add_argument("--reverify", default=None, metavar="OLD.json",
                     help="only verify the programs kept in --keep again (figures of a previous run)")
     args = ap.parse_args(argv)
-    global SPACING
     SPACING = args.spacing
+    PATTERNS = tuple(args.patterns)
+    PENCIL, PENCIL_DENSITY = args.pencil, float(args.pencil_density)
     if args.reverify and not args.keep:
         ap.error("--reverify needs --keep DIR: the folder the programs were kept in")
     if args.reverify:

@@ -69,6 +69,12 @@ VARIANTS = {
     "pencil samples": ({"pencil": True, "pencil_search": "samples"}, 1.0, False),
     "pencil folds, settle off": ({"pencil": True, "pencil_search": "folds", "settle": 0.0}, 1.0, False),
     "pencil folds, settle 1": ({"pencil": True, "pencil_search": "folds", "settle": 1.0}, 1.0, False),
+    "pencil folds, density 20": ({"pencil": True, "pencil_search": "folds", "pencil_density": 20.0}, 1.0, False),
+    "pencil folds, density 15": ({"pencil": True, "pencil_search": "folds", "pencil_density": 15.0}, 1.0, False),
+    "pencil folds, density 10": ({"pencil": True, "pencil_search": "folds", "pencil_density": 10.0}, 1.0, False),
+    "local, pencil folds": ({"spacing": "local", "pencil": True, "pencil_search": "folds"}, 1.0, False),
+    "local, pencil folds, density 20": ({"spacing": "local", "pencil": True, "pencil_search": "folds",
+                                         "pencil_density": 20.0}, 1.0, False),
 }
 
 

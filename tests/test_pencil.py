@@ -389,6 +389,50 @@ def test_background_search_stops_and_reports_errors():
     assert found.chains and found.stats["chains"] == len(found.chains)
 
 
+def test_background_links_only_from_the_end_asked_for():
+    # link_from() lets the worker link the chains; linked() hands them over only for the
+    # same start, tolerance and link length, and they are link_chains' passes in line
+    m = syn.v_groove(a_deg=8.0, half=10.0, step=0.5)
+    cut = BallCutter(m.V, m.F, R)
+    start = np.array([-9.0, 3.0])
+    with pencil.BackgroundChains(lambda: cut, m.V, m.F, 0.1) as bg:
+        bg.link_from(start, 0.01, 8.0)
+        got = bg.linked(start.copy(), 0.01, 8.0)
+        found = bg.result()
+    want = pencil.link_chains(cut, found, 0.01, 8.0, start)
+    assert got is not None and got.stats == want.stats and len(got.passes) == len(want.passes) > 0
+    for a, b in zip(got.passes, want.passes):
+        np.testing.assert_array_equal(a, b)
+    for other in ((start + [1e-9, 0.0], 0.01, 8.0), (start, 0.02, 8.0), (start, 0.01, 9.0)):
+        with pencil.BackgroundChains(lambda: cut, m.V, m.F, 0.1) as bg:
+            bg.link_from(start, 0.01, 8.0)
+            assert bg.linked(*other) is None
+    with pencil.BackgroundChains(lambda: cut, m.V, m.F, 0.1) as bg:  # never asked: nothing linked
+        assert bg.linked(start, 0.01, 8.0) is None
+        assert not bg._thread.is_alive()
+
+
+@pytest.mark.parametrize("pattern", ["zigzag", "contour", "spiral"])
+def test_plan_links_the_pencil_beside_the_cutter(monkeypatch, pattern):
+    # the builder's prediction of where the passes end is where they end, so the pencil
+    # thread's links are used (and give the program of the in-line plan, test above)
+    from conformill.passes import PassBuilder, threads_can_overlap
+
+    if not threads_can_overlap():
+        pytest.skip("nothing runs beside the pattern stage")
+    ends, used = [], []
+    end_xy, linked = PassBuilder.end_xy, pencil.BackgroundChains.linked
+    monkeypatch.setattr(PassBuilder, "end_xy", lambda self: (ends.append(end_xy(self)), ends[-1])[1])
+    monkeypatch.setattr(pencil.BackgroundChains, "linked",
+                        lambda self, *a, **k: (used.append(linked(self, *a, **k)), used[-1])[1])
+    m = syn.v_groove(a_deg=8.0, half=10.0, step=0.5)
+    res = plan(m, Job(pattern=pattern, tool_radius=R, scallop=0.1, tolerance=0.01, pencil=True,
+                      pencil_search="folds"))
+    last = [p for p, i in zip(res.toolpath.passes, res.toolpath.pass_ids) if i >= 0][-1]
+    assert len(ends) == 1 and np.array_equal(ends[0], last[-1, :2])
+    assert len(used) == 1 and used[0] is not None and used[0].stats == res.report["pencil"]
+
+
 def test_a_failing_stage_stops_the_background_search(monkeypatch):
     # the pattern stage fails while the pencil's search runs beside it: plan() raises the
     # stage's error, and no search thread outlives it

@@ -24,6 +24,7 @@ import time
 import numpy as np
 from numba import njit, prange
 
+from conformill.errors import PlanningError
 from conformill.patterns.forward import select_forward
 
 __all__ = ["PassBuilder", "threads_can_overlap"]
@@ -119,6 +120,7 @@ class PassBuilder:
         self._thread = None
         self._cutter_ready = threading.Event()  # set once the worker built the cutter (or failed)
         self._held = []  # pieces handed over, when not threaded (cut in finish())
+        self._last_piece = None
         # progress of the cutter in dense samples of the pieces: handed over (caller's
         # thread) and cut (the worker's, counted when a pass's batch is done)
         self._units_added = 0
@@ -136,6 +138,7 @@ class PassBuilder:
     def add(self, piece) -> None:
         """Hand over the next piece (a :class:`conformill.patterns.pieces.Piece`)."""
         self._units_added += len(piece.curve.sample.xyz)
+        self._last_piece = piece
         if self._thread is None:
             self._held.append(piece)
             return
@@ -147,6 +150,24 @@ class PassBuilder:
         worker failed or was stopped first)."""
         self._cutter_ready.wait()
         return self.cutter
+
+    def end_xy(self):
+        """XY of the ball centre the passes will end at, from the last piece handed over,
+        before the worker gets there: the centre :meth:`_take` and :meth:`_cut` make of
+        that path's last sample (kept by the forward steps, ``settle`` and ``refine``).
+        ``None`` when the last piece is no path or the cutter is not built. A prediction
+        for work that can start early (the pencil's links); compare it with the passes."""
+        pc = self._last_piece
+        if pc is None or pc.kind != "path" or self.cutter is None or not self._cutter_ready.is_set():
+            return None
+        S = pc.curve.sample
+        if len(S.xyz) == 0:
+            return None
+        j = 0 if pc.reverse else len(S.xyz) - 1
+        try:
+            return self.cutter.cl_from_cc(S.xyz[j:j + 1], S.n[j:j + 1])[0][0, :2]
+        except PlanningError:  # the worker meets it too, and raises it from finish()
+            return None
 
     def fraction_cut(self) -> float:
         """Share of the pieces handed over so far whose CC points are cut, by their dense

@@ -744,11 +744,16 @@ def link_chains(cutter, found: PencilChains, tol: float, link_max: float, start_
 
 
 class BackgroundChains:
-    """:func:`pencil_chains` in a worker thread, beside the pattern stage.
+    """:func:`pencil_chains` in a worker thread, beside the pattern stage, then
+    :func:`link_chains` beside the cutter's last batches.
 
     The search needs only the part and the ball, so it can run while the pattern stage
-    and the cutter work; on two cores it takes the CPU they leave idle. The chains are the
-    same as in the caller's thread (the search is a deterministic function of its inputs).
+    and the cutter work; on two cores it takes the CPU they leave idle. The links need the
+    point the pattern's passes end at: the caller hands over where it expects them to end
+    (:meth:`link_from`) as soon as the pattern stage is done, and the worker links from
+    there while the cutter finishes; :meth:`linked` gives the passes only if the passes
+    did end there, so the program is the same as when everything runs in the caller's
+    thread (the search and the links are deterministic functions of their inputs).
 
     Parameters
     ----------
@@ -767,8 +772,12 @@ class BackgroundChains:
         self._nthreads = numba.get_num_threads()  # thread-local in numba: hand it over
         self._get_cutter, self._args, self._kwargs = get_cutter, args, kwargs
         self._stop = threading.Event()
-        self._found, self._error = None, None
-        self.busy_s = 0.0
+        self._searched = threading.Event()  # the search ended (found, failed or stopped)
+        self._go_link = threading.Event()  # link_from() or the end: the worker may go on
+        self._link_args = None
+        self._found, self._linked, self._error = None, None, None
+        self.busy_s = 0.0  # the search's time
+        self.link_s = 0.0  # the links' time
         self.fraction = 0.0  # the search's progress, 0 to 1
         self._thread = threading.Thread(target=self._run, name="conformill-pencil", daemon=True)
         self._thread.start()
@@ -787,25 +796,58 @@ class BackgroundChains:
             self._found = pencil_chains(cutter, *self._args, cancelled=self._stop.is_set,
                                         progress=lambda f: setattr(self, "fraction", f), **self._kwargs)
             self.busy_s = time.perf_counter() - t0
-        except BaseException as exc:  # handed to the caller by result()
+            self._searched.set()
+            self._go_link.wait()
+            if self._found is not None and self._link_args is not None and not self._stop.is_set():
+                t0 = time.perf_counter()
+                self._linked = link_chains(cutter, self._found, *self._link_args)
+                self.link_s = time.perf_counter() - t0
+        except BaseException as exc:  # handed to the caller by result() / linked()
             self._error = exc
+        finally:
+            self._searched.set()
+
+    def link_from(self, start_xy, tol: float, link_max: float) -> None:
+        """Link the chains from ``start_xy`` in the worker once they are found
+        (:func:`link_chains`' arguments); at most once, before :meth:`linked`."""
+        if self._link_args is None and not self._go_link.is_set():
+            self._link_args = (float(tol), float(link_max), np.array(start_xy, dtype=np.float64).reshape(2))
+            self._go_link.set()
 
     def result(self, wait=None) -> PencilChains:
         """The chains, once the search is done (``wait(fraction)`` is called every 0.2 s
         until then); raises what the search raised."""
-        while self._thread.is_alive():
+        while not self._searched.wait(timeout=0.2):
             if wait is not None:
                 wait(self.fraction)
-            self._thread.join(timeout=0.2)
         if self._error is not None:
             raise self._error
         if self._found is None:
             raise RuntimeError("pencil: the background search was cancelled or had no cutter")
         return self._found
 
+    def linked(self, start_xy, tol: float, link_max: float, wait=None) -> PencilResult | None:
+        """The worker's pencil passes if :meth:`link_from` asked for exactly these arguments,
+        else ``None`` (then link :meth:`result` yourself); waits for the worker to end and
+        raises what it raised. ``wait`` as for :meth:`result` (1.0 while the links run)."""
+        self.result(wait)
+        self._go_link.set()  # no link_from(): let the worker end
+        while self._thread.is_alive():
+            if wait is not None:
+                wait(1.0)
+            self._thread.join(timeout=0.2)
+        if self._error is not None:
+            raise self._error
+        start = np.array(start_xy, dtype=np.float64).reshape(2)
+        args = self._link_args
+        if self._linked is not None and args[:2] == (float(tol), float(link_max)) and np.array_equal(args[2], start):
+            return self._linked
+        return None
+
     def cancel(self) -> None:
-        """Stop the search at its next step and wait for the thread (harmless when done)."""
+        """Stop the worker at its next step and wait for the thread (harmless when done)."""
         self._stop.set()
+        self._go_link.set()
         self._thread.join()
 
     def __enter__(self):

@@ -400,6 +400,12 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
                 else:
                     domain = plan_spiral(planner, poly, delta, progress=prog, adaptive=adaptive,
                                          emit=builder.add)
+        if background is not None:
+            # the pencil's links start from where the passes end: the worker links while
+            # the cutter finishes, and the result is used only if the passes end there
+            end = builder.end_xy()
+            if end is not None:
+                background.link_from(end, e, link_max)
         say("cutter", builder.fraction_cut())
         t_wait = time.perf_counter()
         passes, pass_ids, lifts = builder.finish(progress=lambda f: say("cutter", f))
@@ -416,16 +422,18 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
             from conformill.pencil import link_chains, pencil_chains
 
             say("pencil", 0.0)
-            with timer("pencil"):  # beside the pattern stage: the wait for its search, and the links
+            with timer("pencil"):  # beside the other stages: the wait for the search and links
                 cutter = builder.cutter if builder.cutter is not None else BallCutter(mesh.V, mesh.F, r)
                 start = passes[-1][-1, :2] if passes else mesh.V[:, :2].mean(axis=0)
                 if background is not None:
-                    found = background.result(wait=lambda f: say("pencil", 0.9 * f))
-                    timer.t["pencil_busy"] = background.busy_s
+                    pencil = background.linked(start, e, link_max, wait=lambda f: say("pencil", 0.9 * f))
+                    timer.t["pencil_busy"] = background.busy_s + background.link_s
+                    if pencil is None:  # the passes did not end where the builder expected
+                        pencil = link_chains(cutter, background.result(), e, link_max, start)
                 else:
                     found = pencil_chains(cutter, *search_args, **search_kw,
                                           progress=lambda f: say("pencil", 0.9 * f))
-                pencil = link_chains(cutter, found, e, link_max, start)
+                    pencil = link_chains(cutter, found, e, link_max, start)
                 passes = passes + [cutter.tip(p) for p in pencil.passes]
                 pass_ids = pass_ids + [-1] * len(pencil.passes)
     toolpath = ToolPath(passes=passes, safe_z=safe_z, pass_ids=pass_ids)

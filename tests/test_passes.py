@@ -53,18 +53,19 @@ def recorded():
     return res, seen
 
 
-def _builder(seen, threaded, batch, link_max=None, make_cutter=None):
-    """A PassBuilder with the recorded plan's settings (``link_max`` and the cutter replaced
-    where given), no piece handed over yet."""
+def _builder(seen, threaded, batch, link_max=None, make_cutter=None, first_batch=None):
+    """A PassBuilder with the recorded plan's settings (``link_max``, the cutter and the
+    first batch replaced where given), no piece handed over yet."""
     args = list(seen["args"])
     if link_max is not None:
         args[4] = link_max
+    kw = {} if first_batch is None else {"first_batch": first_batch}
     return PassBuilder(make_cutter or seen["make_cutter"], *args[:5], threaded=threaded, batch=batch,
-                       settle_tol=seen["kw"]["settle_tol"])
+                       settle_tol=seen["kw"]["settle_tol"], **kw)
 
 
-def _build(seen, threaded, batch, link_max=None):
-    b = _builder(seen, threaded, batch, link_max)
+def _build(seen, threaded, batch, link_max=None, first_batch=None):
+    b = _builder(seen, threaded, batch, link_max, first_batch=first_batch)
     for pc in seen["pieces"]:
         b.add(pc)
     return b.finish(), b
@@ -78,14 +79,15 @@ def test_pieces_arrive_in_machining_order(recorded):
     assert [p.index for p in seen["pieces"] if p.kind == "path"] == list(range(n))
 
 
-@pytest.mark.parametrize("batch", [1, 7, 500])
+@pytest.mark.parametrize("batch, first", [(1, None), (7, None), (500, None), (500, 3), (10**9, 1)])
 @pytest.mark.parametrize("threaded", [False, True])
-def test_batches_and_worker_give_the_same_program(recorded, batch, threaded):
+def test_batches_and_worker_give_the_same_program(recorded, batch, first, threaded):
+    # batches of any size (the first ones doubling up from ``first``): the same program
     res, seen = recorded
     if threaded and not threads_can_overlap():
         pytest.skip("numba's threading layer here does not allow two threads")
     assert seen["kw"]["settle_tol"] > 0 and res.report["cutter"]["settled_points"] > 0
-    (passes, ids, lifts), builder = _build(seen, threaded, batch)
+    (passes, ids, lifts), builder = _build(seen, threaded, batch, first_batch=first)
     b_done = builder._done
     assert builder.n_settled == res.report["cutter"]["settled_points"]
     assert ids == res.toolpath.pass_ids

@@ -34,8 +34,8 @@ log = logging.getLogger(__name__)
 #: CC points cut together (large enough that the cutter's threads stay busy).
 BATCH = 32768
 #: The first batch: the batches double from this up to ``BATCH``, so that the cutter
-#: starts early in the pattern stage (igea contour: 0.25 s after its start instead of
-#: 0.3 s later, when ``BATCH`` CC points are there).
+#: starts early in the pattern stage (igea contour: 0.08 s after its start instead of
+#: 0.3 s, when ``BATCH`` CC points are there).
 FIRST_BATCH = 4096
 
 

@@ -410,6 +410,15 @@ def test_background_links_only_from_the_end_asked_for():
     with pencil.BackgroundChains(lambda: cut, m.V, m.F, 0.1) as bg:  # never asked: nothing linked
         assert bg.linked(start, 0.01, 8.0) is None
         assert not bg._thread.is_alive()
+    # links that fail in the worker: the error for the start asked for, None for another
+    for other, raises in ((start, True), (start + 1.0, False)):
+        with pencil.BackgroundChains(lambda: cut, m.V, m.F, 0.1) as bg:
+            bg.link_from(start, -1.0, 8.0)
+            if raises:
+                with pytest.raises(PlanningError):
+                    bg.linked(other, -1.0, 8.0)
+            else:
+                assert bg.linked(other, -1.0, 8.0) is None
 
 
 @pytest.mark.parametrize("pattern", ["zigzag", "contour", "spiral"])

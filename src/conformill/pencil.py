@@ -776,6 +776,7 @@ class BackgroundChains:
         self._go_link = threading.Event()  # link_from() or the end: the worker may go on
         self._link_args = None
         self._found, self._linked, self._error = None, None, None
+        self._link_error = None  # raised by linked() only for the start it was asked for
         self.busy_s = 0.0  # the search's time
         self.link_s = 0.0  # the links' time
         self.fraction = 0.0  # the search's progress, 0 to 1
@@ -800,7 +801,10 @@ class BackgroundChains:
             self._go_link.wait()
             if self._found is not None and self._link_args is not None and not self._stop.is_set():
                 t0 = time.perf_counter()
-                self._linked = link_chains(cutter, self._found, *self._link_args)
+                try:
+                    self._linked = link_chains(cutter, self._found, *self._link_args)
+                except BaseException as exc:  # linked() raises it only if these were the links wanted
+                    self._link_error = exc
                 self.link_s = time.perf_counter() - t0
         except BaseException as exc:  # handed to the caller by result() / linked()
             self._error = exc
@@ -840,9 +844,11 @@ class BackgroundChains:
             raise self._error
         start = np.array(start_xy, dtype=np.float64).reshape(2)
         args = self._link_args
-        if self._linked is not None and args[:2] == (float(tol), float(link_max)) and np.array_equal(args[2], start):
-            return self._linked
-        return None
+        if args is None or args[:2] != (float(tol), float(link_max)) or not np.array_equal(args[2], start):
+            return None
+        if self._link_error is not None:
+            raise self._link_error
+        return self._linked
 
     def cancel(self) -> None:
         """Stop the worker at its next step and wait for the thread (harmless when done)."""

@@ -166,7 +166,7 @@ class PassBuilder:
         ``None`` when the last piece is no path or the cutter is not built. A prediction
         for work that can start early (the pencil's links); compare it with the passes."""
         pc = self._last_piece
-        if pc is None or pc.kind != "path" or self.cutter is None or not self._cutter_ready.is_set():
+        if pc is None or pc.kind != "path" or self.cutter is None:  # set once built, by either thread
             return None
         S = pc.curve.sample
         if len(S.xyz) == 0:

@@ -299,11 +299,15 @@ class TestChains:
         np.testing.assert_array_equal(f, fr[keep])
 
     def test_steep_samples_are_rows_of_the_full_draw(self):
+        from conformill.geometry.differential import vertex_normals
+
         m = syn.sphere_cap(R=12.0, radius_xy=11.5, spacing=0.8, jitter=0.1)
         P, N, f = surface_samples(m.V, m.F, 20.0, seed=2)
         Ps, Ns, fs = surface_samples(m.V, m.F, 20.0, seed=2, below_nz=0.4)
         steep = N[:, 2] < 0.4
         assert 0 < steep.sum() < len(P)
+        # faces whose three vertex normals all have n_z >= 0.4 are skipped before mapping
+        assert (vertex_normals(m.V, m.F)[m.F, 2].min(axis=1) >= 0.4).mean() > 0.5
         np.testing.assert_array_equal(Ps, P[steep])
         np.testing.assert_array_equal(Ns, N[steep])
         np.testing.assert_array_equal(fs, f[steep])

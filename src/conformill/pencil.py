@@ -314,13 +314,22 @@ def surface_samples(V, F, density: float, seed: int = 0, areas=None, below_nz: f
     flip = u + v > 1.0
     u[flip], v[flip] = 1.0 - u[flip], 1.0 - v[flip]
     w = np.column_stack([1.0 - u - v, u, v])
+    vn = vertex_normals(V, F)
+    if below_nz is not None:
+        # a sample's normal is a unit vector's convex blend renormalised: where all three
+        # vertex normals have n_z >= b, so has the sample's; those faces' samples are not
+        # mapped (the same draws, so the same samples as the rows of the full output)
+        maybe = ~(vn[F, 2].min(axis=1) >= below_nz + 1e-9)
+        sel = np.flatnonzero(maybe[f])
+        f, w = f[sel], w[sel]
     P = map_points(V, F, f, w)
-    N = map_normals(vertex_normals(V, F), F, f, w)  # NaN where the normals cancel: not kept
+    N = map_normals(vn, F, f, w)  # NaN where the normals cancel: not kept
     up = N[:, 2] > 0
     if below_nz is not None:
         up &= N[:, 2] < below_nz
-    # in cell order (1 mm, row by row): consecutive samples touch the same triangles (cache)
-    key = _cell_order(P) if n else np.zeros(0, dtype=np.int64)
+    # in cell order (1 mm, row by row): consecutive samples touch the same triangles (cache);
+    # a subset keeps its order in the whole (the cells are whole millimetres)
+    key = _cell_order(P) if len(P) else np.zeros(0, dtype=np.int64)
     keep = key[up[key]]
     return P[keep], N[keep], f[keep]
 

@@ -12,7 +12,12 @@ fresh install does not land in the first row. The stage timings come from the
 plan's JSON report.
 
     python benchmarks/bench_scale.py [MESH] [--scale 1400] [--patterns zigzag contour spiral]
-        [--h 0.01] [--repeat 1] [--spacing adaptive|paper|local] [--subdivide K]
+        [--h 0.01] [--repeat 1] [--spacing adaptive|paper|local] [--subdivide K] [--verify N]
+
+``--verify N`` then simulates each pattern's last program on the same mesh with N
+area-uniform samples (seed 0), outside the timed runs, and judges it as ``bench_raster.py``
+does: limit 1.05 h on the samples a 3-axis ball reaches (reach depth h), gouge limit e. It
+adds the reachable p99.9 and p99 (over h), the uncut share and the deepest gouge.
 
 ``--subdivide K`` first splits every triangle into four K times (``trimesh.remesh.subdivide``,
 midpoints: the same surface with 4^K times the faces; the 620k mesh is igea's 155k scan
@@ -45,8 +50,9 @@ def main(argv=None) -> int:
     ap.add_argument("--repeat", type=int, default=1)
     ap.add_argument("--spacing", default="adaptive", choices=["adaptive", "paper", "local"])
     ap.add_argument("--subdivide", type=int, default=0, metavar="K", help="split every triangle into four K times")
+    ap.add_argument("--verify", type=int, default=0, metavar="N", help="simulate each program with N samples (0: off)")
     args = ap.parse_args(argv)
-    rows = []
+    rows, checks = [], {}
     with tempfile.TemporaryDirectory() as tmp:
         if args.subdivide > 0:
             args.mesh = _subdivided(args.mesh, args.subdivide, Path(tmp) / "subdivided.ply")
@@ -78,13 +84,39 @@ def main(argv=None) -> int:
                       f"(its process {w_igl:5.1f} s, {rss_igl:5.0f} MB) | ratio {w / h_igl:5.2f} "
                       f"(target <= 1.5) | {r['program']['cut_points']} CL points, "
                       f"{r['program']['feed_length_mm'] / 1000:.1f} m | {stages}", flush=True)
+            if args.verify > 0:
+                checks[pat] = _verify(args, nc)
+                c = checks[pat]
+                print(f"{pat:8s} verify ({args.verify} samples, {c['seconds']:.0f} s): reachable p99.9 "
+                      f"{c['p999']:.3f} h, p99 {c['p99']:.3f} h, uncut {100 * c['uncut']:.3f} %, "
+                      f"gouge max {1000 * c['gouge']:.1f} um", flush=True)
     print()
-    print("| pattern | plan process (s) | peak RSS (MB) | igl.harmonic (s) | ratio | CL points | feed (m) |")
-    print("|---|---|---|---|---|---|---|")
+    head = "| pattern | plan process (s) | peak RSS (MB) | igl.harmonic (s) | ratio | CL points | feed (m) |"
+    print(head + (" reachable p99.9 / h | p99 / h | gouge max (um) |" if checks else ""))
+    print("|---|---|---|---|---|---|---|" + ("---|---|---|" if checks else ""))
     for pat, w, rss, h_igl, _, r in rows:
+        c = checks.get(pat)
+        tail = f" {c['p999']:.3f} | {c['p99']:.3f} | {1000 * c['gouge']:.1f} |" if c else ""
         print(f"| {pat} | {w:.1f} | {rss:.0f} | {h_igl:.2f} | {w / h_igl:.1f} | {r['program']['cut_points']} | "
-              f"{r['program']['feed_length_mm'] / 1000:.1f} |")
+              f"{r['program']['feed_length_mm'] / 1000:.1f} |" + tail)
     return 0
+
+
+def _verify(args, nc: str) -> dict:
+    """Simulate the program ``nc`` on the mesh as planned (the same file and scale)."""
+    import time
+
+    from conformill.mesh.io import read_mesh
+    from conformill.verify.gcode import read_gcode
+    from conformill.verify.simulate import verify
+
+    t0 = time.perf_counter()
+    mesh = read_mesh(args.mesh, scale=args.scale, validate=False)
+    v = verify(mesh, read_gcode(Path(nc)), args.radius, n_samples=args.verify, seed=0, scallop=1.05 * args.h,
+               reach_depth=args.h, gouge=args.tolerance, judge="reachable")
+    s = v.summary["reachable"]
+    return {"p999": s["scallop"]["p999"] / args.h, "p99": s["scallop"]["p99"] / args.h,
+            "uncut": s["uncut_fraction"], "gouge": v.summary["gouge_max"], "seconds": time.perf_counter() - t0}
 
 
 def _subdivided(mesh: str, k: int, out: Path) -> str:

@@ -101,6 +101,8 @@ def test_plan_programs_run_in_linuxcnc(part, tmp_path, pattern):
     (["--tool-radius", "4", "--scallop", "0.1", "--verify", "--verify-scallop", "nan"], 3, "verify-scallop"),
     (["--tool-radius", "4", "--scallop", "0.1", "--pencil", "--pencil-density", "-5"], 3, "pencil-density"),
     (["--tool-radius", "4", "--scallop", "0.1", "--pencil", "--pencil-density", "nan"], 3, "pencil-density"),
+    # a millimetre part read as metres: refused at once, not planned until memory runs out
+    (["--tool-radius", "4", "--scallop", "0.01", "--scale", "10000"], 3, "--scale"),
 ])
 def test_bad_values_exit_without_output(part, tmp_path, capsys, args, code, word):
     out = tmp_path / "p.nc"

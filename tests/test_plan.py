@@ -127,6 +127,22 @@ def test_safe_z_below_part_is_refused():
         plan(part, Job(tool_radius=2, scallop=0.1, safe_z=0.0))
 
 
+def test_a_plan_too_large_for_memory_is_refused_before_any_work():
+    # 40 x 40 mm at the flat side step: the feed estimate is area / FLAT; 1 MB per metre
+    from conformill.pipeline import _check_size
+
+    part = synthetic.plane(size=40.0, spacing=2.0)
+    feed_m = 1600.0 / FLAT / 1000.0
+    _check_size(part, 1600.0, FLAT, memory=1.01e6 * feed_m)  # just enough: no error
+    with pytest.raises(PlanningError, match=r"40 x 40 x 0 mm .*--scale") as ei:
+        _check_size(part, 1600.0, FLAT, memory=0.99e6 * feed_m)
+    assert f"{feed_m / 1000:.4g} km" in str(ei.value)
+    # on this machine: the same plane read as metres (x 1e5: 16 km^2) is refused by plan()
+    big = synthetic.plane(size=4e6, spacing=2e5)
+    with pytest.raises(PlanningError, match="units"):
+        plan(big, Job(tool_radius=R_TOOL, scallop=H))
+
+
 def test_concave_trough_spacing_flat_cap_and_exact_formula():
     """On a concave cylinder the paper's formula spaces wider than flat; the default caps it."""
     from conformill.planning.steps import side_interval

@@ -143,6 +143,22 @@ def test_a_plan_too_large_for_memory_is_refused_before_any_work():
         plan(big, Job(tool_radius=R_TOOL, scallop=H))
 
 
+def test_a_part_smaller_than_the_ball_is_planned_with_a_units_warning(caplog):
+    # choi's face is 0.12 m across: read as mm it is a speck under the ball
+    from conformill.types import Mesh
+
+    cap = synthetic.sphere_cap(R=50.0, radius_xy=30.0, spacing=2.0)
+    tiny = Mesh(V=cap.V * 1e-3, F=cap.F, name="tiny")
+    with caplog.at_level("WARNING", logger="conformill"):
+        plan(tiny, Job(tool_radius=R_TOOL, scallop=1e-4, tolerance=1e-4))
+    msg = [r.getMessage() for r in caplog.records if "smaller than the ball" in r.getMessage()]
+    assert len(msg) == 1 and "0.06 x 0.06 mm" in msg[0] and "--scale 1000" in msg[0]
+    caplog.clear()
+    with caplog.at_level("WARNING", logger="conformill"):
+        plan(cap, Job(tool_radius=R_TOOL, scallop=H))
+    assert not any("smaller than the ball" in r.getMessage() for r in caplog.records)
+
+
 def test_concave_trough_spacing_flat_cap_and_exact_formula():
     """On a concave cylinder the paper's formula spaces wider than flat; the default caps it."""
     from conformill.planning.steps import side_interval

@@ -343,6 +343,11 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
         if undercut_share > 0:
             log.warning("%.2f%% of the surface faces below the horizontal: not reachable in 3 axes",
                         100 * undercut_share)
+        ext = mesh.V.max(0) - mesh.V.min(0)
+        if max(ext[0], ext[1]) < 2.0 * r:  # a part in metres or inches reads as a speck
+            log.warning("the part is %.3g x %.3g mm across, smaller than the ball (diameter %.3g mm): if its units "
+                        "are not millimetres, scale it (--scale 1000 for metres, 25.4 for inches)", ext[0], ext[1],
+                        2.0 * r)
 
     zmax = float(mesh.V[:, 2].max())
     safe_z = zmax + job.clearance if job.safe_z is None else float(job.safe_z)

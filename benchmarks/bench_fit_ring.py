@@ -1,0 +1,107 @@
+"""The curvature fit's scale against time and scallop (issue 5, session 26).
+
+The planner spaces its paths from a quadratic fit over each vertex's 1-ring
+(:func:`conformill.geometry.differential.surface_frame`). On a mesh much finer than the
+flat side step (the 620k mesh: 0.35 mm edges against a 0.57 mm step at h = 0.01, r = 4)
+the 1-ring reads the curvature over a narrower width than on a coarser scan, and the
+paths come out longer. This script plans one mesh and pattern with the fit over every
+vertex's K-ring instead (K = 1 is the package's own), times the plan (the better of two,
+in-process, after a warm-up) and verifies the program as ``bench_raster.py`` does (seed 0,
+limit 1.05 h, reach depth h, the reachable judge).
+
+The K-ring fit is applied by replacing the 1-ring kernel for this process with the
+package's own K-ring kernel (the widening to deeper rings where a fit fails is kept);
+nothing in the package changes.
+
+    python benchmarks/bench_fit_ring.py [MESH] [--scale S] [--pattern contour] [--rings 1 2]
+        [--samples 400000]
+
+``MESH`` is a short name of :data:`_common.MESH_FILES` (default ``igea``) or a mesh file
+read with ``--scale`` (the 620k mesh: ``/work/shared/meshes/large_igea_face_subdiv1.ply
+--scale 1400``, turned to face +Z as ``--orient auto`` does).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _common  # noqa: E402
+import bench_raster as BR  # noqa: E402
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("mesh", nargs="?", default="igea")
+    ap.add_argument("--scale", type=float, default=1.0, help="for a mesh file: factor to mm (the 620k mesh: 1400)")
+    ap.add_argument("--pattern", default="contour", choices=["zigzag", "contour", "spiral"])
+    ap.add_argument("--rings", nargs="*", type=int, default=[1, 2])
+    ap.add_argument("--samples", type=int, default=400_000)
+    args = ap.parse_args(argv)
+    if any(k < 1 for k in args.rings):
+        ap.error("rings are 1 or more")
+    import logging
+
+    logging.disable(logging.WARNING)
+    from conformill.geometry import differential as D
+    from conformill.mesh.io import read_mesh
+    from conformill.output.gcode import write_gcode
+    from conformill.pipeline import Job, orient_mesh, plan
+    from conformill.types import Mesh
+
+    h, r, e = 0.01, 4.0, 0.01
+    if args.mesh in _common.MESH_FILES:
+        mesh, _ = _common.load_part(args.mesh)
+    else:
+        m, _ = orient_mesh(read_mesh(args.mesh), "auto")
+        mesh = Mesh(V=m.V * args.scale, F=m.F, name=Path(args.mesh).stem)
+    mesh, _ = orient_mesh(mesh, "none")
+    print(_common.machine())
+    print(f"{mesh.name}: {mesh.n_faces} faces; {args.pattern}, r = {r:g}, h = {h:g}, e = {e:g}; verify: "
+          f"{args.samples} samples, seed 0, limit 1.05 h, reach depth h", flush=True)
+    BR.warm_up()
+    samples = _common.verify_samples(mesh, args.samples, r)
+    reach = _common.reachable_samples(mesh, samples, r, tol=h)
+    job = Job(pattern=args.pattern, tool_radius=r, scallop=h, tolerance=e)
+    own = D._fit_1ring
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for k in args.rings:
+            if k > 1:
+                def fit(ptr, nb, boundary, V, uv, coef, rc, rcond_min, k=k):
+                    return D._fit_kring(np.arange(len(V)), k, ptr, nb, V, uv, coef, rc, rcond_min, True)
+
+                D._fit_1ring = fit
+            try:
+                plan(mesh, job)  # the K-ring kernel's first call
+                best = np.inf
+                for _ in range(2):
+                    t0 = time.perf_counter()
+                    res = plan(mesh, job)
+                    best = min(best, time.perf_counter() - t0)
+            finally:
+                D._fit_1ring = own
+            path = Path(tmp) / "p.nc"
+            write_gcode(path, res.toolpath, feed=1000.0, plunge_feed=1000.0 / 3)
+            m = BR.measure(mesh, path, r, h, e, samples, reach, res.toolpath.safe_z)
+            vr = m["verify_reach"]
+            rows.append((k, best, res.report["paths"]["cl_points"], m["feed_mm"] / 1000, vr["p999"] / h,
+                         vr["p99"] / h))
+            print(f"  {k}-ring: plan {best:.2f} s, {rows[-1][2]} CL points, {rows[-1][3]:.1f} m, reachable p99.9 "
+                  f"{rows[-1][4]:.3f} h, p99 {rows[-1][5]:.3f} h", flush=True)
+    print()
+    print("| fit | plan s | CL points | feed m | reachable p99.9 / h | p99 / h |")
+    print("|---|---|---|---|---|---|")
+    for k, t, cl, f, p999, p99 in rows:
+        print(f"| {k}-ring | {t:.2f} | {cl} | {f:.1f} | {p999:.3f} | {p99:.3f} |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

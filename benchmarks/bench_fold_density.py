@@ -1,0 +1,119 @@
+"""What each use of the fold search's density buys, set apart (issue 5, session 26).
+
+With ``--pencil-search folds`` one density D (``--pencil-density``) sets three things in
+:func:`conformill.pencil.pencil_chains`: the XY grid's spacing ``1 / sqrt(D)`` for the
+fold points, the density of the steep samples searched one by one, and the spacing the
+centres are thinned and chained at. This script plans one mesh and pattern with the fold
+pencil once per setting ``GRID,STEEP,CHAIN`` (densities per mm²), each taken apart, and
+verifies every program as ``bench_raster.py`` does (400k samples, seed 0, limit 1.05 h,
+reach depth h, the reachable judge).
+
+The settings are applied by replacing ``pencil.pencil_chains`` for this process with the
+same steps as its fold branch, each with its own density; nothing in the package changes.
+``30,30,30`` is the package's own default.
+
+    python benchmarks/bench_fold_density.py [MESH] [--pattern contour] [--samples 400000]
+        [--settings 30,30,30 10,10,10 10,30,30 30,10,30 30,30,10]
+
+``MESH`` is a short name of :data:`_common.MESH_FILES` (default ``igea``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _common  # noqa: E402
+import bench_raster as BR  # noqa: E402
+
+
+def _chains_apart(densities):
+    """``pencil_chains`` with the fold search's three densities ``(grid, steep, chain)``."""
+    from conformill import pencil
+    from conformill.folds import fold_points, wedge_jump
+
+    dg, ds, dc = densities
+
+    def chains(cutter, V, F, h, *, search="samples", density=30.0, low=0.15, high=1.0, min_chain=1,
+               settle_tol=0.0, seed=0, progress=None, cancelled=None):
+        V = np.asarray(V, dtype=np.float64)
+        F = np.asarray(F, dtype=np.int64)
+        fp = fold_points(cutter, 1.0 / math.sqrt(dg), wedge_jump(cutter.radius, low * h))
+        keep = fp.shadow > low * h
+        P, N, faces = pencil.surface_samples(V, F, ds, seed, areas=pencil._face_areas(V, F),
+                                             below_nz=pencil._STEEP_NZ)
+        C, rest, state = pencil.best_centres(cutter, P, N, faces, low=low * h,
+                                             give_up=max(pencil._GIVE_UP, high) * h)
+        useful = (state == 1) & (rest > low * h) & (rest <= high * h) & np.isfinite(C[:, 2])
+        return pencil._chains_through(cutter, np.vstack([fp.centres[keep], C[useful]]), 1.0 / math.sqrt(dc),
+                                      min_chain, settle_tol, {"search": "folds", "densities": list(densities)})
+
+    return chains
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("mesh", nargs="?", default="igea")
+    ap.add_argument("--pattern", default="contour", choices=["zigzag", "contour", "spiral"])
+    ap.add_argument("--samples", type=int, default=400_000)
+    ap.add_argument("--settings", nargs="*", default=["30,30,30", "10,10,10", "10,30,30", "30,10,30", "30,30,10"])
+    args = ap.parse_args(argv)
+    settings = []
+    for s in args.settings:
+        v = tuple(float(x) for x in s.split(","))
+        if len(v) != 3 or min(v) <= 0:
+            ap.error(f"a setting is three positive densities GRID,STEEP,CHAIN, got {s!r}")
+        settings.append(v)
+    import logging
+
+    logging.disable(logging.WARNING)
+    from conformill import pencil
+    from conformill.output.gcode import write_gcode
+    from conformill.pipeline import Job, orient_mesh, plan
+
+    h, r, e = 0.01, 4.0, 0.01
+    mesh, _ = _common.load_part(args.mesh)
+    mesh, _ = orient_mesh(mesh, "none")
+    print(_common.machine())
+    print(f"{mesh.name}: {mesh.n_faces} faces; {args.pattern} with the fold pencil, r = {r:g}, h = {h:g}, e = {e:g}; "
+          f"verify: {args.samples} samples, seed 0, limit 1.05 h, reach depth h", flush=True)
+    BR.warm_up()
+    samples = _common.verify_samples(mesh, args.samples, r)
+    reach = _common.reachable_samples(mesh, samples, r, tol=h)
+    job = Job(pattern=args.pattern, tool_radius=r, scallop=h, tolerance=e, pencil=True, pencil_search="folds")
+    own = pencil.pencil_chains
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for d in settings:
+            pencil.pencil_chains = _chains_apart(d)
+            try:
+                t0, c0 = time.perf_counter(), time.process_time()
+                res = plan(mesh, job)
+                wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+            finally:
+                pencil.pencil_chains = own
+            path = Path(tmp) / "p.nc"
+            write_gcode(path, res.toolpath, feed=1000.0, plunge_feed=1000.0 / 3)
+            m = BR.measure(mesh, path, r, h, e, samples, reach, res.toolpath.safe_z)
+            vr = m["verify_reach"]
+            rows.append((d, wall, cpu, res.report["pencil"]["feed_mm"] / 1000, m["feed_mm"] / 1000, vr["p999"] / h,
+                         vr["p99"] / h))
+            print(f"  grid / steep / chain {d}: {wall:.2f} s ({cpu:.2f} cpu), pencil {rows[-1][3]:.1f} m, "
+                  f"feed {rows[-1][4]:.1f} m, reachable p99.9 {rows[-1][5]:.3f} h, p99 {rows[-1][6]:.3f} h", flush=True)
+    print()
+    print("| grid / steep / chain per mm^2 | plan s (cpu s) | pencil feed m | feed m | reachable p99.9 / h | p99 / h |")
+    print("|---|---|---|---|---|---|")
+    for d, wall, cpu, pf, f, p999, p99 in rows:
+        print(f"| {d[0]:g} / {d[1]:g} / {d[2]:g} | {wall:.2f} ({cpu:.2f}) | {pf:.1f} | {f:.1f} | {p999:.3f} | {p99:.3f} |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

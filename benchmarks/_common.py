@@ -235,6 +235,15 @@ def scan_study(args):
     return mesh, verify_samples(mesh, args.samples, args.r)
 
 
+def print_table(columns, rows) -> None:
+    """Print a Markdown table: ``columns`` is a list of ``(title, format)`` pairs (a format
+    spec such as ``".2f"``, or ``""``), ``rows`` a list of tuples in the same order."""
+    print("| " + " | ".join(t for t, _ in columns) + " |")
+    print("|" + "---|" * len(columns))
+    for row in rows:
+        print("| " + " | ".join(format(v, f) for v, (_, f) in zip(row, columns)) + " |")
+
+
 def verify_samples(mesh, n: int, r: float):
     """The area-uniform samples every program of a run is verified on: ``n`` of them, seed 0,
     their boundary distances measured as ``verify`` measures them (the rim sampled every

@@ -13,8 +13,8 @@ The K-ring fit is applied by replacing the 1-ring kernel for this process with t
 package's own K-ring kernel (the widening to deeper rings where a fit fails is kept);
 nothing in the package changes.
 
-    python benchmarks/bench_fit_ring.py [MESH] [--scale S] [--pattern contour] [--rings 1 2]
-        [--samples 400000]
+    python benchmarks/bench_fit_ring.py [MESH] [--scale S] [--pattern contour] [--h 0.01] [--r 4]
+        [--e 0.01] [--rings 1 2] [--samples 400000]
 
 ``MESH`` is a short name of :data:`_common.MESH_FILES` (default ``igea``) or a mesh file
 read with ``--scale`` (the 620k mesh: ``/work/shared/meshes/large_igea_face_subdiv1.ply
@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -37,70 +36,61 @@ import bench_raster as BR  # noqa: E402
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("mesh", nargs="?", default="igea")
+    ap = _common.scan_job_parser(__doc__, BR.PATTERNS)
     ap.add_argument("--scale", type=float, default=1.0, help="for a mesh file: factor to mm (the 620k mesh: 1400)")
-    ap.add_argument("--pattern", default="contour", choices=["zigzag", "contour", "spiral"])
     ap.add_argument("--rings", nargs="*", type=int, default=[1, 2])
-    ap.add_argument("--samples", type=int, default=400_000)
     args = ap.parse_args(argv)
     if any(k < 1 for k in args.rings):
         ap.error("rings are 1 or more")
-    import logging
-
-    logging.disable(logging.WARNING)
     from conformill.geometry import differential as D
-    from conformill.mesh.io import read_mesh
-    from conformill.output.gcode import write_gcode
-    from conformill.pipeline import Job, orient_mesh, plan
-    from conformill.types import Mesh
+    from conformill.pipeline import Job, plan
 
-    h, r, e = 0.01, 4.0, 0.01
-    if args.mesh in _common.MESH_FILES:
-        mesh, _ = _common.load_part(args.mesh)
-    else:
-        m, _ = orient_mesh(read_mesh(args.mesh), "auto")
-        mesh = Mesh(V=m.V * args.scale, F=m.F, name=Path(args.mesh).stem)
-    mesh, _ = orient_mesh(mesh, "none")
-    print(_common.machine())
-    print(f"{mesh.name}: {mesh.n_faces} faces; {args.pattern}, r = {r:g}, h = {h:g}, e = {e:g}; verify: "
-          f"{args.samples} samples, seed 0, limit 1.05 h, reach depth h", flush=True)
-    BR.warm_up()
-    samples = _common.verify_samples(mesh, args.samples, r)
-    reach = _common.reachable_samples(mesh, samples, r, tol=h)
+    h, r, e = args.h, args.r, args.e
+    mesh, samples = _common.scan_study(args) if args.mesh in _common.MESH_FILES else _file_study(args)
     job = Job(pattern=args.pattern, tool_radius=r, scallop=h, tolerance=e)
+    print(f"{mesh.name}: {mesh.n_faces} faces; {args.pattern}, r = {r:g}, h = {h:g}, e = {e:g}", flush=True)
     own = D._fit_1ring
     rows = []
-    with tempfile.TemporaryDirectory() as tmp:
-        for k in args.rings:
-            if k > 1:
-                def fit(ptr, nb, boundary, V, uv, coef, rc, rcond_min, k=k):
-                    return D._fit_kring(np.arange(len(V)), k, ptr, nb, V, uv, coef, rc, rcond_min, True)
+    for k in args.rings:
+        if k > 1:
+            def fit(ptr, nb, boundary, V, uv, coef, rc, rcond_min, k=k):
+                return D._fit_kring(np.arange(len(V)), k, ptr, nb, V, uv, coef, rc, rcond_min, True)
 
-                D._fit_1ring = fit
-            try:
-                plan(mesh, job)  # the K-ring kernel's first call
-                best = np.inf
-                for _ in range(2):
-                    t0 = time.perf_counter()
-                    res = plan(mesh, job)
-                    best = min(best, time.perf_counter() - t0)
-            finally:
-                D._fit_1ring = own
-            path = Path(tmp) / "p.nc"
-            write_gcode(path, res.toolpath, feed=1000.0, plunge_feed=1000.0 / 3)
-            m = BR.measure(mesh, path, r, h, e, samples, reach, res.toolpath.safe_z)
-            vr = m["verify_reach"]
-            rows.append((k, best, res.report["paths"]["cl_points"], m["feed_mm"] / 1000, vr["p999"] / h,
-                         vr["p99"] / h))
-            print(f"  {k}-ring: plan {best:.2f} s, {rows[-1][2]} CL points, {rows[-1][3]:.1f} m, reachable p99.9 "
-                  f"{rows[-1][4]:.3f} h, p99 {rows[-1][5]:.3f} h", flush=True)
+            D._fit_1ring = fit
+        try:
+            plan(mesh, job)  # the first plan loads (or compiles) the kernels
+            best = np.inf
+            for _ in range(2):
+                t0 = time.perf_counter()
+                res = plan(mesh, job)
+                best = min(best, time.perf_counter() - t0)
+        finally:
+            D._fit_1ring = own
+        prog = _common.program_of(res)
+        s = _common.verify_program(mesh, prog, samples, h, r, e).summary["reachable"]["scallop"]
+        rows.append((k, best, res.report["paths"]["cl_points"], BR.cut_length(prog, res.toolpath.safe_z) / 1000,
+                     s["p999"] / h, s["p99"] / h))
+        print(f"  {k}-ring: plan {best:.2f} s, {rows[-1][2]} CL points, {rows[-1][3]:.1f} m, reachable p99.9 "
+              f"{rows[-1][4]:.3f} h, p99 {rows[-1][5]:.3f} h", flush=True)
     print()
-    print("| fit | plan s | CL points | feed m | reachable p99.9 / h | p99 / h |")
-    print("|---|---|---|---|---|---|")
-    for k, t, cl, f, p999, p99 in rows:
-        print(f"| {k}-ring | {t:.2f} | {cl} | {f:.1f} | {p999:.3f} | {p99:.3f} |")
+    _common.print_table([("ring", ""), ("plan s", ".2f"), ("CL points", ""), ("feed m", ".1f"),
+                         ("reachable p99.9 / h", ".3f"), ("p99 / h", ".3f")], rows)
     return 0
+
+
+def _file_study(args):
+    """:func:`_common.scan_study` for a mesh file: read, turned to face +Z, times ``--scale``."""
+    import logging
+
+    from conformill.mesh.io import read_mesh
+    from conformill.pipeline import orient_mesh
+    from conformill.types import Mesh
+
+    logging.disable(logging.WARNING)
+    m, _ = orient_mesh(read_mesh(args.mesh), "auto")
+    mesh = Mesh(V=m.V * args.scale, F=m.F, name=Path(args.mesh).stem)
+    print(_common.machine())
+    return mesh, _common.verify_samples(mesh, args.samples, args.r)
 
 
 if __name__ == "__main__":

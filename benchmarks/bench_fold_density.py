@@ -12,8 +12,8 @@ The settings are applied by replacing ``pencil.pencil_chains`` for this process 
 same steps as its fold branch, each with its own density; nothing in the package changes.
 ``30,30,30`` is the package's own default.
 
-    python benchmarks/bench_fold_density.py [MESH] [--pattern contour] [--samples 400000]
-        [--settings 30,30,30 10,10,10 10,30,30 30,10,30 30,30,10]
+    python benchmarks/bench_fold_density.py [MESH] [--pattern contour] [--h 0.01] [--r 4] [--e 0.01]
+        [--samples 400000] [--settings 30,30,30 10,10,10 10,30,30 30,10,30 30,30,10]
 
 ``MESH`` is a short name of :data:`_common.MESH_FILES` (default ``igea``).
 """
@@ -23,7 +23,6 @@ from __future__ import annotations
 import argparse
 import math
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -59,10 +58,7 @@ def _chains_apart(densities):
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("mesh", nargs="?", default="igea")
-    ap.add_argument("--pattern", default="contour", choices=["zigzag", "contour", "spiral"])
-    ap.add_argument("--samples", type=int, default=400_000)
+    ap = _common.scan_job_parser(__doc__, BR.PATTERNS)
     ap.add_argument("--settings", nargs="*", default=["30,30,30", "10,10,10", "10,30,30", "30,10,30", "30,30,10"])
     args = ap.parse_args(argv)
     settings = []
@@ -71,47 +67,36 @@ def main(argv=None) -> int:
         if len(v) != 3 or min(v) <= 0:
             ap.error(f"a setting is three positive densities GRID,STEEP,CHAIN, got {s!r}")
         settings.append(v)
-    import logging
-
-    logging.disable(logging.WARNING)
     from conformill import pencil
-    from conformill.output.gcode import write_gcode
-    from conformill.pipeline import Job, orient_mesh, plan
+    from conformill.pipeline import Job, plan
 
-    h, r, e = 0.01, 4.0, 0.01
-    mesh, _ = _common.load_part(args.mesh)
-    mesh, _ = orient_mesh(mesh, "none")
-    print(_common.machine())
-    print(f"{mesh.name}: {mesh.n_faces} faces; {args.pattern} with the fold pencil, r = {r:g}, h = {h:g}, e = {e:g}; "
-          f"verify: {args.samples} samples, seed 0, limit 1.05 h, reach depth h", flush=True)
-    BR.warm_up()
-    samples = _common.verify_samples(mesh, args.samples, r)
-    reach = _common.reachable_samples(mesh, samples, r, tol=h)
+    h, r, e = args.h, args.r, args.e
+    mesh, samples = _common.scan_study(args)
     job = Job(pattern=args.pattern, tool_radius=r, scallop=h, tolerance=e, pencil=True, pencil_search="folds")
+    print(f"{mesh.name}: {mesh.n_faces} faces; {args.pattern} with the fold pencil, r = {r:g}, h = {h:g}, e = {e:g}",
+          flush=True)
+    plan(mesh, job)  # warm numba's caches: the timed plans below compare
     own = pencil.pencil_chains
     rows = []
-    with tempfile.TemporaryDirectory() as tmp:
-        for d in settings:
-            pencil.pencil_chains = _chains_apart(d)
-            try:
-                t0, c0 = time.perf_counter(), time.process_time()
-                res = plan(mesh, job)
-                wall, cpu = time.perf_counter() - t0, time.process_time() - c0
-            finally:
-                pencil.pencil_chains = own
-            path = Path(tmp) / "p.nc"
-            write_gcode(path, res.toolpath, feed=1000.0, plunge_feed=1000.0 / 3)
-            m = BR.measure(mesh, path, r, h, e, samples, reach, res.toolpath.safe_z)
-            vr = m["verify_reach"]
-            rows.append((d, wall, cpu, res.report["pencil"]["feed_mm"] / 1000, m["feed_mm"] / 1000, vr["p999"] / h,
-                         vr["p99"] / h))
-            print(f"  grid / steep / chain {d}: {wall:.2f} s ({cpu:.2f} cpu), pencil {rows[-1][3]:.1f} m, "
-                  f"feed {rows[-1][4]:.1f} m, reachable p99.9 {rows[-1][5]:.3f} h, p99 {rows[-1][6]:.3f} h", flush=True)
+    for d in settings:
+        pencil.pencil_chains = _chains_apart(d)
+        try:
+            t0, c0 = time.perf_counter(), time.process_time()
+            res = plan(mesh, job)
+            wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+        finally:
+            pencil.pencil_chains = own
+        prog = _common.program_of(res)
+        s = _common.verify_program(mesh, prog, samples, h, r, e).summary["reachable"]["scallop"]
+        rows.append((d, wall, cpu, res.report["pencil"]["feed_mm"] / 1000,
+                     BR.cut_length(prog, res.toolpath.safe_z) / 1000, s["p999"] / h, s["p99"] / h))
+        print(f"  grid / steep / chain {d}: {wall:.2f} s ({cpu:.2f} cpu), pencil {rows[-1][3]:.1f} m, "
+              f"feed {rows[-1][4]:.1f} m, reachable p99.9 {rows[-1][5]:.3f} h, p99 {rows[-1][6]:.3f} h", flush=True)
     print()
-    print("| grid / steep / chain per mm^2 | plan s (cpu s) | pencil feed m | feed m | reachable p99.9 / h | p99 / h |")
-    print("|---|---|---|---|---|---|")
-    for d, wall, cpu, pf, f, p999, p99 in rows:
-        print(f"| {d[0]:g} / {d[1]:g} / {d[2]:g} | {wall:.2f} ({cpu:.2f}) | {pf:.1f} | {f:.1f} | {p999:.3f} | {p99:.3f} |")
+    _common.print_table([("grid / steep / chain per mm^2", ""), ("plan s (cpu s)", ""), ("pencil feed m", ".1f"),
+                         ("feed m", ".1f"), ("reachable p99.9 / h", ".3f"), ("p99 / h", ".3f")],
+                        [(" / ".join(f"{v:g}" for v in d), f"{wall:.2f} ({cpu:.2f})", *rest)
+                         for d, wall, cpu, *rest in rows])
     return 0
 
 

@@ -220,7 +220,8 @@ def scan_job_parser(doc: str, patterns):
 def scan_study(args):
     """What every one-mesh scan study does first (``args`` from :func:`scan_job_parser`).
 
-    Warnings off, the part loaded and oriented as ``plan`` sees it (the verify mesh is the
+    Warnings off, the part loaded (:func:`study_mesh`, with ``args.scale`` where the
+    parser has it) and oriented as ``plan`` sees it (the verify mesh is the
     planned one), the machine printed. Returns ``(mesh, samples)``: the verify samples as
     ``bench_raster.py`` draws them (``args.samples``, seed 0).
     """
@@ -229,10 +230,20 @@ def scan_study(args):
     from conformill.pipeline import orient_mesh
 
     logging.disable(logging.WARNING)
-    mesh, _ = load_part(args.mesh)
-    mesh, _ = orient_mesh(mesh, "none")
+    mesh, _ = orient_mesh(study_mesh(args.mesh, getattr(args, "scale", 1.0)), "none")
     print(machine())
     return mesh, verify_samples(mesh, args.samples, args.r)
+
+
+def study_mesh(name: str, scale: float = 1.0):
+    """A short name of :data:`MESH_FILES` (:func:`load_part`), or a mesh file read as
+    ``conformill plan FILE --scale S`` reads it (the 620k mesh of ``bench_scale.py``:
+    ``/work/shared/meshes/large_igea_face_subdiv1.ply`` with ``scale`` 1400)."""
+    if name in MESH_FILES:
+        return load_part(name)[0]
+    from conformill.mesh.io import read_mesh
+
+    return read_mesh(name, scale=scale)
 
 
 def print_table(columns, rows) -> None:

@@ -137,12 +137,7 @@ def main(argv=None) -> int:
     from conformill.cutter import BallCutter
     from conformill.pipeline import Job, plan
 
-    if args.mesh in _common.MESH_FILES:
-        mesh, _ = _common.load_part(args.mesh)
-    else:  # as `conformill plan FILE --scale S` reads it (bench_scale.py)
-        from conformill.mesh.io import read_mesh
-
-        mesh = read_mesh(args.mesh, scale=args.scale)
+    mesh = _common.study_mesh(args.mesh, args.scale)
     job = Job(pattern=args.pattern, tool_radius=args.r, scallop=args.h, tolerance=args.e)
     plan(mesh, job)  # numba's caches
     t0 = time.perf_counter()

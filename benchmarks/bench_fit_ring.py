@@ -17,13 +17,12 @@ nothing in the package changes.
         [--e 0.01] [--rings 1 2] [--samples 400000]
 
 ``MESH`` is a short name of :data:`_common.MESH_FILES` (default ``igea``) or a mesh file
-read with ``--scale`` (the 620k mesh: ``/work/shared/meshes/large_igea_face_subdiv1.ply
---scale 1400``, turned to face +Z as ``--orient auto`` does).
+read as ``conformill plan FILE --scale S`` reads it (the 620k mesh:
+``/work/shared/meshes/large_igea_face_subdiv1.ply --scale 1400``).
 """
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 from pathlib import Path
@@ -46,7 +45,7 @@ def main(argv=None) -> int:
     from conformill.pipeline import Job, plan
 
     h, r, e = args.h, args.r, args.e
-    mesh, samples = _common.scan_study(args) if args.mesh in _common.MESH_FILES else _file_study(args)
+    mesh, samples = _common.scan_study(args)
     job = Job(pattern=args.pattern, tool_radius=r, scallop=h, tolerance=e)
     print(f"{mesh.name}: {mesh.n_faces} faces; {args.pattern}, r = {r:g}, h = {h:g}, e = {e:g}", flush=True)
     own = D._fit_1ring
@@ -76,21 +75,6 @@ def main(argv=None) -> int:
     _common.print_table([("ring", ""), ("plan s", ".2f"), ("CL points", ""), ("feed m", ".1f"),
                          ("reachable p99.9 / h", ".3f"), ("p99 / h", ".3f")], rows)
     return 0
-
-
-def _file_study(args):
-    """:func:`_common.scan_study` for a mesh file: read, turned to face +Z, times ``--scale``."""
-    import logging
-
-    from conformill.mesh.io import read_mesh
-    from conformill.pipeline import orient_mesh
-    from conformill.types import Mesh
-
-    logging.disable(logging.WARNING)
-    m, _ = orient_mesh(read_mesh(args.mesh), "auto")
-    mesh = Mesh(V=m.V * args.scale, F=m.F, name=Path(args.mesh).stem)
-    print(_common.machine())
-    return mesh, _common.verify_samples(mesh, args.samples, args.r)
 
 
 if __name__ == "__main__":

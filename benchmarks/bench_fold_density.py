@@ -8,8 +8,9 @@ pencil once per setting ``GRID,STEEP,CHAIN`` (densities per mm²), each taken ap
 verifies every program as ``bench_raster.py`` does (400k samples, seed 0, limit 1.05 h,
 reach depth h, the reachable judge).
 
-The settings are applied by replacing ``pencil.pencil_chains`` for this process with the
-same steps as its fold branch, each with its own density; nothing in the package changes.
+The settings are applied by replacing ``pencil.pencil_chains`` for this process with its
+fold branch's steps (:func:`conformill.pencil.fold_centres`, :func:`conformill.pencil.steep_centres`,
+the chains), each with its own density; nothing in the package changes.
 ``30,30,30`` is the package's own default.
 
     python benchmarks/bench_fold_density.py [MESH] [--pattern contour] [--h 0.01] [--r 4] [--e 0.01]
@@ -20,7 +21,6 @@ same steps as its fold branch, each with its own density; nothing in the package
 
 from __future__ import annotations
 
-import argparse
 import math
 import sys
 import time
@@ -36,23 +36,15 @@ import bench_raster as BR  # noqa: E402
 def _chains_apart(densities):
     """``pencil_chains`` with the fold search's three densities ``(grid, steep, chain)``."""
     from conformill import pencil
-    from conformill.folds import fold_points, wedge_jump
 
     dg, ds, dc = densities
 
     def chains(cutter, V, F, h, *, search="samples", density=30.0, low=0.15, high=1.0, min_chain=1,
                settle_tol=0.0, seed=0, progress=None, cancelled=None):
-        V = np.asarray(V, dtype=np.float64)
-        F = np.asarray(F, dtype=np.int64)
-        fp = fold_points(cutter, 1.0 / math.sqrt(dg), wedge_jump(cutter.radius, low * h))
-        keep = fp.shadow > low * h
-        P, N, faces = pencil.surface_samples(V, F, ds, seed, areas=pencil._face_areas(V, F),
-                                             below_nz=pencil._STEEP_NZ)
-        C, rest, state = pencil.best_centres(cutter, P, N, faces, low=low * h,
-                                             give_up=max(pencil._GIVE_UP, high) * h)
-        useful = (state == 1) & (rest > low * h) & (rest <= high * h) & np.isfinite(C[:, 2])
-        return pencil._chains_through(cutter, np.vstack([fp.centres[keep], C[useful]]), 1.0 / math.sqrt(dc),
-                                      min_chain, settle_tol, {"search": "folds", "densities": list(densities)})
+        _, folds = pencil.fold_centres(cutter, 1.0 / math.sqrt(dg), h, low)
+        _, steep = pencil.steep_centres(cutter, V, F, h, ds, low, high, seed)
+        return pencil._chains_through(cutter, np.vstack([folds, steep]), 1.0 / math.sqrt(dc), min_chain,
+                                      settle_tol, {"search": "folds", "densities": list(densities)})
 
     return chains
 

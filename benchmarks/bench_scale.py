@@ -52,7 +52,7 @@ def main(argv=None) -> int:
     ap.add_argument("--subdivide", type=int, default=0, metavar="K", help="split every triangle into four K times")
     ap.add_argument("--verify", type=int, default=0, metavar="N", help="simulate each program with N samples (0: off)")
     args = ap.parse_args(argv)
-    rows, checks = [], {}
+    rows, checks, mesh = [], {}, None  # mesh: read once, for --verify
     with tempfile.TemporaryDirectory() as tmp:
         if args.subdivide > 0:
             args.mesh = _subdivided(args.mesh, args.subdivide, Path(tmp) / "subdivided.ply")
@@ -85,7 +85,11 @@ def main(argv=None) -> int:
                       f"(target <= 1.5) | {r['program']['cut_points']} CL points, "
                       f"{r['program']['feed_length_mm'] / 1000:.1f} m | {stages}", flush=True)
             if args.verify > 0:
-                checks[pat] = _verify(args, nc)
+                if mesh is None:
+                    from conformill.mesh.io import read_mesh
+
+                    mesh = read_mesh(args.mesh, scale=args.scale, validate=False)
+                checks[pat] = _verify(args, mesh, nc)
                 c = checks[pat]
                 print(f"{pat:8s} verify ({args.verify} samples, {c['seconds']:.0f} s): reachable p99.9 "
                       f"{c['p999']:.3f} h, p99 {c['p99']:.3f} h, uncut {100 * c['uncut']:.3f} %, "
@@ -102,16 +106,14 @@ def main(argv=None) -> int:
     return 0
 
 
-def _verify(args, nc: str) -> dict:
-    """Simulate the program ``nc`` on the mesh as planned (the same file and scale)."""
+def _verify(args, mesh, nc: str) -> dict:
+    """Simulate the program ``nc`` on ``mesh``, read as the plans read it (the same file and scale)."""
     import time
 
-    from conformill.mesh.io import read_mesh
     from conformill.verify.gcode import read_gcode
     from conformill.verify.simulate import verify
 
     t0 = time.perf_counter()
-    mesh = read_mesh(args.mesh, scale=args.scale, validate=False)
     v = verify(mesh, read_gcode(Path(nc)), args.radius, n_samples=args.verify, seed=0, scallop=1.05 * args.h,
                reach_depth=args.h, gouge=args.tolerance, judge="reachable")
     s = v.summary["reachable"]

@@ -673,7 +673,7 @@ def pencil_chains(cutter, V, F, h: float, *, search: str = "samples", density: f
     areas = _face_areas(V, F)
     area = float(areas.sum())
     if search == "folds":
-        from conformill.folds import _MAX_GRID, _grid_box, fold_points, wedge_jump
+        from conformill.folds import _MAX_GRID, _grid_box
 
         lo, hi = _grid_box(cutter)
         plane = float(np.prod(hi - lo))
@@ -682,25 +682,18 @@ def pencil_chains(cutter, V, F, h: float, *, search: str = "samples", density: f
                         "per mm^2", plane, density, density * plane / 1e6, 0.9 * _MAX_GRID / plane)
             density = 0.9 * _MAX_GRID / plane
         spacing = 1.0 / math.sqrt(density)
-        fp = fold_points(cutter, spacing, wedge_jump(cutter.radius, low * h))
+        fp, folds = fold_centres(cutter, spacing, h, low)
         say(0.5)
         if stop():
             return None
-        keep = fp.shadow > low * h
-        # steep walls: a fold running down one projects to a short XY segment that few grid
-        # edges cross; there the samples are searched one by one instead
-        P, N, faces = surface_samples(V, F, min(density, _MAX_SAMPLES / area), seed, areas=areas,
-                                      below_nz=_STEEP_NZ)
-        C, rest, state = best_centres(cutter, P, N, faces, low=low * h, give_up=max(_GIVE_UP, high) * h)
-        useful = (state == 1) & (rest > low * h) & (rest <= high * h) & np.isfinite(C[:, 2])
-        stats = {"search": "folds", **fp.stats, "fold_points": int(len(fp.centres)), "centres": int(keep.sum()),
-                 "steep_samples": int(len(P)), "steep_centres": int(useful.sum()),
+        n_steep, steep = steep_centres(cutter, V, F, h, min(density, _MAX_SAMPLES / area), low, high, seed, areas)
+        stats = {"search": "folds", **fp.stats, "fold_points": int(len(fp.centres)), "centres": int(len(folds)),
+                 "steep_samples": n_steep, "steep_centres": int(len(steep)),
                  "density_per_mm2": float(density), "low": float(low), "high": float(high)}
         say(0.8)
         if stop():
             return None
-        return _chains_through(cutter, np.vstack([fp.centres[keep], C[useful]]), spacing, min_chain, settle_tol,
-                               stats)
+        return _chains_through(cutter, np.vstack([folds, steep]), spacing, min_chain, settle_tol, stats)
     if density * area > _MAX_SAMPLES:
         log.warning("pencil: %.0f mm^2 at %.3g samples per mm^2 would be %.3gM samples; using %.3g per mm^2 "
                     "(at most %dM)", area, density, density * area / 1e6, _MAX_SAMPLES / area, _MAX_SAMPLES // 10**6)
@@ -724,6 +717,28 @@ def pencil_chains(cutter, V, F, h: float, *, search: str = "samples", density: f
              "rounds_used_up": int(np.count_nonzero(state == 3)), "density_per_mm2": float(density),
              "low": float(low), "high": float(high)}
     return _chains_through(cutter, C[useful], 1.0 / math.sqrt(density), min_chain, settle_tol, stats)
+
+
+def fold_centres(cutter, spacing: float, h: float, low: float = 0.15):
+    """The fold search's first step: fold points on an XY grid of ``spacing`` (mm) whose
+    shadow is deeper than ``low * h``. Returns the :class:`conformill.folds.FoldPoints` and
+    those centres ``(k, 3)``."""
+    from conformill.folds import fold_points, wedge_jump
+
+    fp = fold_points(cutter, spacing, wedge_jump(cutter.radius, low * h))
+    return fp, fp.centres[fp.shadow > low * h]
+
+
+def steep_centres(cutter, V, F, h: float, density: float, low: float = 0.15, high: float = 1.0, seed: int = 0,
+                  areas=None):
+    """The fold search's second step: on walls steeper than 78 deg a fold running down the
+    wall projects to a short XY segment that few grid edges cross, so there the samples
+    (``density`` per mm^2) are searched one by one. Returns the number of such samples and
+    the centres ``(k, 3)`` whose rest lies in ``(low * h, high * h]``."""
+    P, N, faces = surface_samples(V, F, density, seed, areas=areas, below_nz=_STEEP_NZ)
+    C, rest, state = best_centres(cutter, P, N, faces, low=low * h, give_up=max(_GIVE_UP, high) * h)
+    useful = (state == 1) & (rest > low * h) & (rest <= high * h) & np.isfinite(C[:, 2])
+    return int(len(P)), C[useful]
 
 
 def _chains_through(cutter, B, spacing, min_chain, settle_tol, stats) -> PencilChains:

@@ -13,6 +13,7 @@ plan's JSON report.
 
     python benchmarks/bench_scale.py [MESH] [--scale 1400] [--patterns zigzag contour spiral]
         [--h 0.01] [--repeat 1] [--spacing adaptive|paper|local] [--subdivide K] [--verify N]
+        [--plan-args "--hop-lifted 3"]
 
 ``--verify N`` then simulates each pattern's last program on the same mesh with N
 area-uniform samples (seed 0), outside the timed runs, and judges it as ``bench_raster.py``
@@ -29,6 +30,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shlex
 import sys
 import tempfile
 from pathlib import Path
@@ -51,6 +53,8 @@ def main(argv=None) -> int:
     ap.add_argument("--spacing", default="adaptive", choices=["adaptive", "paper", "local"])
     ap.add_argument("--subdivide", type=int, default=0, metavar="K", help="split every triangle into four K times")
     ap.add_argument("--verify", type=int, default=0, metavar="N", help="simulate each program with N samples (0: off)")
+    ap.add_argument("--plan-args", default="", metavar="ARGS",
+                    help="more options for every plan, one string (e.g. \"--hop-lifted 3\")")
     args = ap.parse_args(argv)
     rows, checks, mesh = [], {}, None  # mesh: read once, for --verify
     with tempfile.TemporaryDirectory() as tmp:
@@ -58,7 +62,7 @@ def main(argv=None) -> int:
             args.mesh = _subdivided(args.mesh, args.subdivide, Path(tmp) / "subdivided.ply")
         igl_cmd = [sys.executable, "-c", IGL_CHILD, args.mesh, str(args.scale)]
         print(f"mesh {args.mesh} x{args.scale:g}; r = {args.radius:g}, h = {args.h:g}, e = {args.tolerance:g}; "
-              f"{os.cpu_count()} CPUs")
+              f"{os.cpu_count()} CPUs" + (f"; plan {args.plan_args}" if args.plan_args else ""))
         # untimed: a small plan per pattern fills numba's cache (on a fresh install the first
         # plan compiles the kernels for about a minute), then the mesh's own first read
         # warms the OS file cache in the first timed run's stead
@@ -71,7 +75,8 @@ def main(argv=None) -> int:
             nc, rep = str(Path(tmp) / f"{pat}.nc"), str(Path(tmp) / f"{pat}.json")
             cmd = [sys.executable, "-m", "conformill", "plan", args.mesh, "--scale", str(args.scale),
                    "--pattern", pat, "--tool-radius", str(args.radius), "--scallop", str(args.h),
-                   "--tolerance", str(args.tolerance), "--spacing", args.spacing, "-o", nc, "--report", rep, "-q"]
+                   "--tolerance", str(args.tolerance), "--spacing", args.spacing, "-o", nc, "--report", rep, "-q",
+                   *shlex.split(args.plan_args)]
             for _ in range(args.repeat):
                 w_igl, rss_igl, out = run_child(igl_cmd)
                 h_igl = float(out.split("HARMONIC")[1].split()[0])

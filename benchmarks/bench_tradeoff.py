@@ -76,6 +76,11 @@ VARIANTS = {
     "local, pencil folds, density 20": ({"spacing": "local", "pencil": True, "pencil_search": "folds",
                                          "pencil_density": 20.0}, 1.0, False),
 }
+for _L in (1.0, 3.0, 6.0):
+    VARIANTS[f"hop {_L:g}"] = ({"hop_lift": _L}, 1.0, False)
+    VARIANTS[f"hop {_L:g}, pencil folds"] = ({"hop_lift": _L, "pencil": True, "pencil_search": "folds"}, 1.0, False)
+    VARIANTS[f"hop {_L:g}, pencil folds, density 20"] = ({"hop_lift": _L, "pencil": True, "pencil_search": "folds",
+                                                         "pencil_density": 20.0}, 1.0, False)
 
 
 def main(argv=None) -> int:

@@ -87,14 +87,14 @@ def test_batches_and_worker_give_the_same_program(recorded, batch, first, thread
     if threaded and not threads_can_overlap():
         pytest.skip("numba's threading layer here does not allow two threads")
     assert seen["kw"]["settle_tol"] > 0 and res.report["cutter"]["settled_points"] > 0
-    (passes, ids, lifts), builder = _build(seen, threaded, batch, first_batch=first)
+    (passes, ids, lifts, _), builder = _build(seen, threaded, batch, first_batch=first)
     b_done = builder._done
     assert builder.n_settled == res.report["cutter"]["settled_points"]
     assert ids == res.toolpath.pass_ids
     assert len(passes) == len(res.toolpath.passes)
     for a, b in zip(passes, res.toolpath.passes):
         assert np.array_equal(a, b)
-    (_, _, whole_lifts), _ = _build(seen, False, 10**9)
+    (_, _, whole_lifts, _), _ = _build(seen, False, 10**9)
     assert np.array_equal(np.concatenate(lifts), np.concatenate(whole_lifts))
     # the hint handed to the next batch is the triangle the last centre rests on
     from conformill.cutter import _tri_drop
@@ -119,14 +119,14 @@ def test_progress_of_the_cutter(recorded, threaded, link_max):
     for pc in seen["pieces"]:
         b.add(pc)
     got = []
-    passes, ids, _ = b.finish(progress=got.append)
+    passes, ids, _, _ = b.finish(progress=got.append)
     f = np.array(got)
     assert f[-1] == 1.0
     if not threaded:  # one report per piece (the worker may be done before finish() looks)
         assert f.size == len(seen["pieces"]) + 1 and f[0] < 1.0
     assert np.all((f >= 0.0) & (f <= 1.0)) and np.all(np.diff(f) >= 0.0)
     assert b._units_cut == b._units_added == sum(len(pc.curve.sample.xyz) for pc in seen["pieces"])
-    (plain, ids_plain, _), _ = _build(seen, False, 500, link_max=link_max)
+    (plain, ids_plain, _, _), _ = _build(seen, False, 500, link_max=link_max)
     assert ids == ids_plain and len(passes) == len(plain)
     assert all(np.array_equal(a, c) for a, c in zip(passes, plain))
 
@@ -164,16 +164,16 @@ def test_progress_reported_while_the_worker_cuts(recorded):
         got.append(f)
         gate.set()
 
-    passes, ids, _ = b.finish(progress=report)
+    passes, ids, _, _ = b.finish(progress=report)
     assert len(got) >= 2 and got[0] < 1.0 and got[-1] == 1.0
-    (plain, ids_plain, _), _ = _build(seen, False, 500)
+    (plain, ids_plain, _, _), _ = _build(seen, False, 500)
     assert ids == ids_plain and all(np.array_equal(a, c) for a, c in zip(passes, plain))
 
 
 def test_retracts_split_passes_the_same_way_in_batches(recorded):
     _, seen = recorded
-    (whole, ids_w, _), bw = _build(seen, False, 10**9, link_max=1e-6)
-    (parts, ids_p, _), bp = _build(seen, threads_can_overlap(), 5, link_max=1e-6)
+    (whole, ids_w, _, _), bw = _build(seen, False, 10**9, link_max=1e-6)
+    (parts, ids_p, _, _), bp = _build(seen, threads_can_overlap(), 5, link_max=1e-6)
     assert bw.n_retracts_link == bp.n_retracts_link > 0
     assert len(whole) == bw.n_retracts_link + 1 and ids_w == ids_p
     for a, b in zip(whole, parts):

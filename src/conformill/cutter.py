@@ -695,6 +695,67 @@ def _highest_floats(P, seg, tri, steps, eps, r, T, B, gx0, gy0, cell, ncx, ncy, 
     return bt, bz, bk, bl, c0, c1
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _seg_box_dist2(ax, ay, bx, by, x0, y0, x1, y1):
+    """Squared distance between the segment ``a b`` and the box ``[x0, x1] x [y0, y1]``."""
+    # the segment clipped to the box (Liang-Barsky): any part inside gives 0
+    t0, t1 = 0.0, 1.0
+    dx, dy = bx - ax, by - ay
+    inside = True
+    for pp, qq in ((-dx, ax - x0), (dx, x1 - ax), (-dy, ay - y0), (dy, y1 - ay)):
+        if pp == 0.0:
+            if qq < 0.0:
+                inside = False
+        else:
+            t = qq / pp
+            if pp < 0.0:
+                t0 = max(t0, t)
+            else:
+                t1 = min(t1, t)
+    if inside and t0 <= t1:
+        return 0.0
+    # apart: the nearest pair has an end of the segment or a corner of the box
+    best = np.inf
+    for px, py in ((ax, ay), (bx, by)):
+        ex = max(x0 - px, 0.0, px - x1)
+        ey = max(y0 - py, 0.0, py - y1)
+        best = min(best, ex * ex + ey * ey)
+    l2 = dx * dx + dy * dy
+    for cx, cy in ((x0, y0), (x1, y0), (x0, y1), (x1, y1)):
+        t = 0.0 if l2 == 0.0 else min(max(((cx - ax) * dx + (cy - ay) * dy) / l2, 0.0), 1.0)
+        ex = ax + t * dx - cx
+        ey = ay + t * dy - cy
+        best = min(best, ex * ex + ey * ey)
+    return best
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _clear_heights(a, b, r, gx0, gy0, cell, ncx, ncy, czmax):
+    """Per segment ``a[i] -> b[i]``: the largest ``zmax_C + sqrt(r^2 - d^2)`` over the grid
+    cells ``C`` whose distance ``d`` to the segment is at most ``r`` (``-inf``: none)."""
+    m = a.shape[0]
+    out = np.full(m, -np.inf)
+    r2 = r * r
+    for s in prange(m):
+        ax, ay, bx, by = a[s, 0], a[s, 1], b[s, 0], b[s, 1]
+        i0 = min(max(int(math.floor((min(ax, bx) - r - gx0) / cell)), 0), ncx - 1)
+        i1 = min(max(int(math.floor((max(ax, bx) + r - gx0) / cell)), 0), ncx - 1)
+        j0 = min(max(int(math.floor((min(ay, by) - r - gy0) / cell)), 0), ncy - 1)
+        j1 = min(max(int(math.floor((max(ay, by) + r - gy0) / cell)), 0), ncy - 1)
+        best = -np.inf
+        for j in range(j0, j1 + 1):
+            for i in range(i0, i1 + 1):
+                z = czmax[j * ncx + i]
+                if z + r <= best:
+                    continue
+                d2 = _seg_box_dist2(ax, ay, bx, by, gx0 + i * cell, gy0 + j * cell, gx0 + (i + 1) * cell,
+                                    gy0 + (j + 1) * cell)
+                if d2 <= r2:
+                    best = max(best, z + math.sqrt(r2 - d2))
+        out[s] = best
+    return out
+
+
 @njit(cache=True, nogil=True, parallel=True)
 def _tables(V, F, r):
     """Per-triangle tables ``T (m, 13)`` (vertices, unit up normal, 1 / det_xy) and
@@ -970,6 +1031,39 @@ class BallCutter:
             raise PlanningError(f"cutter: face index out of range [0, {len(self._rank)})")
         return np.ascontiguousarray(self._rank[faces], dtype=np.int64)
 
+    def clear_height(self, a, b, clearance: float = 0.0) -> np.ndarray:
+        """A centre height at and above which the ball touches nothing along each XY segment.
+
+        An upper bound of the drop surface over the segment ``a -> b``, with no drop: a
+        ball centred at ``p`` can touch only the triangles listed in the grid cells within
+        ``r`` of ``p``, each no higher than its cell's highest top ``zmax_C``, so the drop
+        height at ``p`` is at most ``zmax_C + sqrt(r^2 - dist(p, C)^2)`` over those cells;
+        over the segment, at most ``zmax_C + sqrt(r^2 - dist(segment, C)^2)``. A straight
+        move at this height or above it, from over ``a`` to over ``b``, cannot cut the part.
+
+        Parameters
+        ----------
+        a, b : (k, 2) float64
+            Segment ends (ball-centre XY), mm.
+        clearance : float
+            Keep the ball this far (mm) from the part: the bound for a ball of radius
+            ``r + clearance``.
+
+        Returns
+        -------
+        z : (k,) float64
+            ``-inf`` where no triangle is within reach of the segment.
+        """
+        a = _as_points(a, 2, "a")
+        b = _as_points(b, 2, "b")
+        if a.shape != b.shape:
+            raise PlanningError(f"cutter: a and b must have the same shape, got {a.shape} and {b.shape}")
+        clearance = float(clearance)
+        if not (math.isfinite(clearance) and clearance >= 0):
+            raise PlanningError(f"cutter: clearance must be >= 0, got {clearance}")
+        gx0, gy0, cell, ncx, ncy = self._grid
+        return _clear_heights(a, b, self.radius + clearance, gx0, gy0, cell, ncx, ncy, self._czmax)
+
     # ------------------------------------------------------------------ CC -> CL
     def cl_from_cc(self, cc, n, contacts: bool = False):
         """Ball centres for cutter-contact points, lifted so that the ball cannot gouge.
@@ -1094,18 +1188,34 @@ class BallCutter:
             Bad shapes, non-finite values, ``tol`` not positive.
         """
         P = _as_points(centers, 3, "centers")
-        tol = float(tol)
-        if not (math.isfinite(tol) and tol > 0):
-            raise PlanningError(f"cutter: refine tolerance must be positive, got {tol}")
+        tol = _refine_tol(tol)
         if len(P) < 2:
             return P.copy()
-        r = self.radius
-        thresh = min(0.5 * tol, r)
-        floor2 = (r - thresh) ** 2
         # moves to check: all but the (nearly) vertical ones (a vertical move between two
         # safe centres stays above the drop surface)
         d = np.diff(P, axis=0)
-        check = np.hypot(d[:, 0], d[:, 1]) > 1e-9
+        return self._refine(P, np.hypot(d[:, 0], d[:, 1]) > 1e-9, tol, max_iter, max_depth,
+                            np.zeros(0, dtype=np.int64))[0]
+
+    def refine_pieces(self, pieces, tol: float, max_iter: int = 40, max_depth: int = 16) -> list:
+        """:meth:`refine` on each polyline of ``pieces``, in one batch of kernel calls (the
+        same points as one call per piece; see :meth:`settle_pieces`)."""
+        tol = _refine_tol(tol)
+        if not pieces:
+            return []
+        P, check, starts = _stack_pieces(pieces)
+        P, starts = self._refine(P, check, tol, max_iter, max_depth, starts)
+        bounds = np.append(starts, len(P))
+        return [P[bounds[i]:bounds[i + 1]] for i in range(len(pieces))]
+
+    def _refine(self, P, check, tol, max_iter, max_depth, track):
+        """The rounds of :meth:`refine` on the moves flagged in ``check``; ``track``: indices
+        of input points whose positions in the output are returned too."""
+        if len(P) < 2:
+            return P.copy(), track
+        r = self.radius
+        thresh = min(0.5 * tol, r)
+        floor2 = (r - thresh) ** 2
         for it in range(max_iter):
             seg = np.flatnonzero(check)
             if seg.size == 0:
@@ -1124,6 +1234,7 @@ class BallCutter:
             if unknown.size:
                 newpts[unknown, 2] = self.drop(newpts[unknown, :2])
             P, check = _insert(P, seg_bad, newpts)
+            track = track + np.searchsorted(seg_bad, track, side="left")
         else:
             if check.any():
                 # still undecided after max_iter rounds: halve those moves until no piece
@@ -1131,8 +1242,8 @@ class BallCutter:
                 seg = np.flatnonzero(check)
                 log.warning("cutter.refine: %d moves still unchecked after %d rounds; halved to L_safe pieces",
                             seg.size, max_iter)
-                P = self._split_safe(P, seg, thresh)
-        return P
+                P, track = self._split_safe(P, seg, thresh, track)
+        return P, track
 
     def settle(self, centers, tol: float, steps: int = 3, max_iter: int = 4, contacts=None) -> tuple:
         """Insert drop-cutter points where a straight centre move floats above the drop surface.
@@ -1212,7 +1323,7 @@ class BallCutter:
                                                  np.zeros(0, dtype=np.int64))
         return (P, inserted, left, tri) if want else (P, inserted, left)
 
-    def settle_pieces(self, pieces, tol: float, steps: int = 3, max_iter: int = 4) -> tuple:
+    def settle_pieces(self, pieces, tol: float, steps: int = 3, max_iter: int = 4, contacts=None) -> tuple:
         """:meth:`settle` on each polyline of ``pieces``, in one batch of kernel calls.
 
         The same points as one :meth:`settle` call per piece (a move is settled on its
@@ -1225,28 +1336,29 @@ class BallCutter:
         pieces : list of (k_i, 3) float64
         tol, steps, max_iter
             As for :meth:`settle`.
+        contacts : list of (k_i,) int, optional
+            Contact hints per piece, as for :meth:`settle`.
 
         Returns
         -------
         pieces : list of (k_i', 3) float64
         inserted, unresolved : int
             Summed over the pieces.
+        contacts : list of (k_i',) int64
+            Only when ``contacts`` is given: the hints for the output points.
         """
         tol, steps = _settle_args(tol, steps)
+        want = contacts is not None
         if not pieces:
-            return [], 0, 0
-        arrs = [_as_points(c, 3, "centers") for c in pieces]
-        lens = np.array([len(c) for c in arrs], dtype=np.int64)
-        starts = np.concatenate([[0], np.cumsum(lens)[:-1]]).astype(np.int64)
-        P = np.vstack(arrs)
-        d = np.diff(P, axis=0)
-        check = np.hypot(d[:, 0], d[:, 1]) > 1e-9
-        b = starts[1:]
-        check[b[(b > 0) & (b < len(P))] - 1] = False  # from one piece's end to the next one's start
-        P, _, inserted, left, starts = self._settle(P, np.full(len(P), -1, dtype=np.int64), check, tol, steps,
-                                                    max_iter, starts)
+            return ([], 0, 0, []) if want else ([], 0, 0)
+        P, check, starts = _stack_pieces(pieces)
+        tri = self._hints(np.concatenate([np.asarray(c) for c in contacts]) if want else None, len(P))
+        P, tri, inserted, left, starts = self._settle(P, tri, check, tol, steps, max_iter, starts)
         bounds = np.append(starts, len(P))
-        return [P[bounds[i]:bounds[i + 1]] for i in range(len(arrs))], inserted, left
+        out = [P[bounds[i]:bounds[i + 1]] for i in range(len(pieces))]
+        if want:
+            return out, inserted, left, [tri[bounds[i]:bounds[i + 1]] for i in range(len(pieces))]
+        return out, inserted, left
 
     def _settle(self, P, tri, check, tol, steps, max_iter, track):
         """The rounds of :meth:`settle` on the moves flagged in ``check``; ``track``: indices
@@ -1326,7 +1438,7 @@ class BallCutter:
         between two points on the drop surface that cannot cut ``thresh`` into the part."""
         return 2.0 * math.sqrt(thresh * (2.0 * self.radius - thresh))
 
-    def _split_safe(self, P, seg, thresh, max_levels: int = 60):
+    def _split_safe(self, P, seg, thresh, track, max_levels: int = 60):
         """Halve moves ``seg`` until every piece is at most ``L_safe`` long (3D).
 
         The midpoints are lifted onto the drop surface where the chord lies below it, so
@@ -1342,14 +1454,15 @@ class BallCutter:
             d = np.diff(P, axis=0)
             long_ = check & (np.linalg.norm(d, axis=1) > l_safe) & (np.hypot(d[:, 0], d[:, 1]) > 1e-9)
             if not long_.any():
-                return P
+                return P, track
             s = np.flatnonzero(long_)
             mid = 0.5 * (P[s] + P[s + 1])
             mid[:, 2] = np.maximum(self.drop(mid[:, :2]), mid[:, 2])
             P, check = _insert(P, s, mid)
+            track = track + np.searchsorted(s, track, side="left")
         log.warning("cutter.refine: %d moves still longer than L_safe after %d halvings",
                     int(long_.sum()), max_levels)
-        return P
+        return P, track
 
     def _worst_points(self, P, seg, thresh, floor2, max_depth):
         """``(t, depth, drop height)`` of the deepest violating chord point of each move ``seg``: see ``_worst_points``."""
@@ -1376,6 +1489,28 @@ def _settle_args(tol, steps):
     if steps < 1:
         raise PlanningError(f"cutter: settle needs at least one step, got {steps}")
     return tol, steps
+
+
+def _refine_tol(tol) -> float:
+    tol = float(tol)
+    if not (math.isfinite(tol) and tol > 0):
+        raise PlanningError(f"cutter: refine tolerance must be positive, got {tol}")
+    return tol
+
+
+def _stack_pieces(pieces):
+    """Polylines stacked: ``(P, check, starts)`` with ``check`` flagging the moves inside
+    a piece that have an XY extent (not the step from one piece's end to the next's start)
+    and ``starts`` the index of each piece's first point."""
+    arrs = [_as_points(c, 3, "centers") for c in pieces]
+    lens = np.array([len(c) for c in arrs], dtype=np.int64)
+    starts = np.concatenate([[0], np.cumsum(lens)[:-1]]).astype(np.int64)
+    P = np.vstack(arrs)
+    d = np.diff(P, axis=0)
+    check = np.hypot(d[:, 0], d[:, 1]) > 1e-9
+    b = starts[1:]
+    check[b[(b > 0) & (b < len(P))] - 1] = False  # from one piece's end to the next one's start
+    return P, check, starts
 
 
 def _insert(P, after, newpts):

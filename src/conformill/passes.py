@@ -16,6 +16,7 @@ before gives, point for point, what one call on the whole pass gives.
 
 from __future__ import annotations
 
+import collections
 import logging
 import queue
 import threading
@@ -37,6 +38,8 @@ BATCH = 32768
 #: starts early in the pattern stage (igea contour: 0.08 s after its start instead of
 #: 0.3 s, when ``BATCH`` CC points are there).
 FIRST_BATCH = 4096
+#: Least distance (mm) between the ball and the part on a hop's rapid move.
+HOP_CLEARANCE = 1.0
 
 
 def threads_can_overlap() -> bool:
@@ -74,6 +77,7 @@ class _Pass:
         self.centres, self.lifts = [], []
         self.last = None  # last refined centre: the first point of the next batch's moves
         self.last_tri = -1  # the triangle it rests on (a hint for the cutter)
+        self.air = None  # with hops: centres and contacts of a lifted run after ``last``, undecided
 
 
 class PassBuilder:
@@ -93,6 +97,11 @@ class PassBuilder:
     settle_tol : float
         No centre move floats more than this above the drop surface
         (:meth:`conformill.cutter.BallCutter.settle`); 0: not checked.
+    hop_lift : float
+        Runs of centres lifted more than this above their planned contact (mm) are hopped
+        over where that is quicker (:meth:`_cut_hopping`); 0: off.
+    rates : (float, float, float)
+        Feed, plunge feed and rapid rate (mm/min) the hops are timed at.
     threaded : bool
         Work in a worker thread (see :func:`threads_can_overlap`).
     batch : int
@@ -108,12 +117,17 @@ class PassBuilder:
 
     def __init__(self, make_cutter, tolerance: float, e_fwd: float, e_cvx: float, max_step: float,
                  link_max: float, threaded: bool, batch: int = BATCH, settle_tol: float = 0.0,
-                 first_batch: int = FIRST_BATCH):
+                 first_batch: int = FIRST_BATCH, hop_lift: float = 0.0, rates=(1000.0, 1000.0 / 3, 5000.0)):
         self._make_cutter = make_cutter
         self.cutter = None
         self.e, self.e_fwd, self.e_cvx, self.max_step = tolerance, e_fwd, e_cvx, max_step
         self.link_max = link_max
         self.settle_tol = float(settle_tol)
+        self.hop_lift = float(hop_lift)
+        self.feed, self.plunge, self.rapid = (float(v) for v in rates)
+        self.n_hops = 0  # lifted runs hopped over
+        self.n_hopped = 0  # CC points not cut: in those runs, or lifted at a pass's ends
+        self.hop_saved = 0.0  # minutes: the runs hopped over at feed, less the hops
         self.n_settled = 0  # points inserted by the settle check
         self.n_settle_unresolved = 0  # moves its rounds did not test again
         self.batch = int(batch)
@@ -129,6 +143,7 @@ class PassBuilder:
         self._cutter_ready = threading.Event()  # set once the worker built the cutter (or failed)
         self._held = []  # pieces handed over, when not threaded (cut in finish())
         self._last_piece = None
+        self._recent = collections.deque(maxlen=16)  # the last pieces handed over (end_xy)
         # progress of the cutter in dense samples of the pieces: handed over (caller's
         # thread) and cut (the worker's, counted when a pass's batch is done)
         self._units_added = 0
@@ -147,6 +162,7 @@ class PassBuilder:
         """Hand over the next piece (a :class:`conformill.patterns.pieces.Piece`)."""
         self._units_added += len(piece.curve.sample.xyz)
         self._last_piece = piece
+        self._recent.append(piece)
         if self._thread is None:
             self._held.append(piece)
             return
@@ -171,8 +187,21 @@ class PassBuilder:
         S = pc.curve.sample
         if len(S.xyz) == 0:
             return None
-        j = 0 if pc.reverse else len(S.xyz) - 1
         try:
+            if self.hop_lift > 0:  # the last CC point cut: not lifted above the limit
+                for q in reversed(self._recent):  # (the runs after it are not cut)
+                    X3, cc, nn = self._forward(q)
+                    if q.kind != "path":
+                        if float(np.linalg.norm(np.diff(X3, axis=0), axis=1).sum()) > self.link_max:
+                            continue  # a retract: nothing cut
+                        cc, nn = cc[1:-1], nn[1:-1]
+                    if len(cc):
+                        c, lift = self.cutter.cl_from_cc(cc, nn)
+                        ok = np.flatnonzero(lift <= self.hop_lift)
+                        if ok.size:
+                            return c[ok[-1], :2]
+                return None
+            j = 0 if pc.reverse else len(S.xyz) - 1
             return self.cutter.cl_from_cc(S.xyz[j:j + 1], S.n[j:j + 1])[0][0, :2]
         except PlanningError:  # the worker meets it too, and raises it from finish()
             return None
@@ -183,10 +212,12 @@ class PassBuilder:
         return min(self._units_cut / self._units_added, 1.0) if self._units_added else 1.0
 
     def finish(self, progress=None):
-        """Cut what is left; returns ``(passes, pass_ids, lifts)``.
+        """Cut what is left; returns ``(passes, pass_ids, lifts, hops)``.
 
         ``passes`` are tool-tip polylines ``(k, 3)``; ``lifts`` the drop-cutter lifts of
-        the CC points (mm). ``progress(fraction)``, if given, is called while the cutter
+        the CC points (mm); ``hops`` per pass the hop into it from the pass before, as
+        the tool-tip heights of its rapid across and of its rapid down to above the pass
+        start (``None``: a retract to the safe height; see ``hop_lift``). ``progress(fraction)``, if given, is called while the cutter
         works (:meth:`fraction_cut`, non-decreasing, last 1.0). Raises what the worker
         raised.
         """
@@ -205,18 +236,24 @@ class PassBuilder:
             self._thread = None
             self._raise()
         say(1.0)
-        passes, ids, lifts = [], [], []
+        passes, ids, lifts, hops = [], [], [], []
         for p in self._done:
-            if not p.centres:
-                continue
-            centres = np.concatenate(p.centres)
-            # drop consecutive duplicates (a centre point path, link ends)
-            keep = np.ones(len(centres), dtype=bool)
-            keep[1:] = np.any(np.abs(np.diff(centres, axis=0)) > 1e-9, axis=1)
-            passes.append(self.cutter.tip(centres[keep]))
-            ids.append(p.path_id)
             lifts.extend(p.lifts)
-        return passes, ids, lifts
+            run, hop = [], None  # a pair in p.centres: a hop (centre heights across and down to)
+            for c in p.centres + [None]:
+                if isinstance(c, np.ndarray):
+                    run.append(c)
+                    continue
+                if run:
+                    centres = np.concatenate(run)
+                    # drop consecutive duplicates (a centre point path, link ends)
+                    keep = np.ones(len(centres), dtype=bool)
+                    keep[1:] = np.any(np.abs(np.diff(centres, axis=0)) > 1e-9, axis=1)
+                    passes.append(self.cutter.tip(centres[keep]))
+                    ids.append(p.path_id)
+                    hops.append(None if hop is None else tuple(z - self.cutter.radius for z in hop))
+                run, hop = [], c
+        return passes, ids, lifts, hops
 
     def __enter__(self):
         return self
@@ -264,8 +301,8 @@ class PassBuilder:
             while not ended:  # let finish() / abort() return: take the end marker
                 ended = self._queue.get() is None
 
-    def _take(self, pc):
-        t0 = time.perf_counter()
+    def _forward(self, pc):
+        """The piece's dense samples in cutting order and its CC points and normals."""
         c = pc.curve
         S = c.sample
         order = slice(None, None, -1) if pc.reverse else slice(None)
@@ -275,7 +312,11 @@ class PassBuilder:
         # the fitted (smooth) normal: with the facet's the contact would sit exactly on
         # the CC point, but the centre path would jitter at every edge; measured, it
         # changes the scallop by less than 1 % (cad_like_0, h = 0.01)
-        cc, nn = X3[idx], S.n[order][idx]
+        return X3, X3[idx], S.n[order][idx]
+
+    def _take(self, pc):
+        t0 = time.perf_counter()
+        X3, cc, nn = self._forward(pc)
         cur = self._passes[-1]
         if pc.kind == "path":
             self.cc_paths.append(cc)
@@ -299,6 +340,7 @@ class PassBuilder:
                 self._units_cut += len(X3)  # nothing to cut: a retract
                 self.timings["forward"] += time.perf_counter() - t0
                 self._cut(cur)
+                self._end(cur)
                 self._done.append(cur)
                 self._passes.append(_Pass(-1))
                 return
@@ -310,7 +352,14 @@ class PassBuilder:
     def _close(self):
         for p in self._passes[len(self._done):]:
             self._cut(p)
+            self._end(p)
             self._done.append(p)
+
+    def _end(self, p: _Pass):
+        """The pass ends: a lifted run after its last cut centre is not cut."""
+        if p.air is not None:
+            self.n_hopped += len(p.air[0])
+            p.air = None
 
     def _cut(self, p: _Pass):
         """Drop-cutter and gouge-safe moves for the pending CC points of pass ``p``."""
@@ -326,6 +375,11 @@ class PassBuilder:
         if len(cc):
             centres, lift, tri = self.cutter.cl_from_cc(cc, nn, contacts=True)  # finite, or it raises
             p.lifts.append(lift)
+            if self.hop_lift > 0:
+                self._cut_hopping(p, centres, lift, tri)
+                self._units_cut += units
+                self.timings["cutter"] += time.perf_counter() - t0
+                return
             # The move from the last batch's end into this batch is checked here.
             if p.last is not None:
                 centres = np.vstack([p.last[None], centres])
@@ -346,3 +400,81 @@ class PassBuilder:
             p.last_tri = int(tri[-1])
         self._units_cut += units
         self.timings["cutter"] += time.perf_counter() - t0
+
+    def _cut_hopping(self, p: _Pass, centres, lift, tri):
+        """:meth:`_cut` where runs of centres lifted more than ``hop_lift`` are hopped over.
+
+        Such a run is where the ball cannot reach its planned contact (an undercut, a
+        pocket tighter than the ball): it rides on material that other passes mostly cut.
+        Where a hop is quicker than riding the run at the feed, the run is not cut and the
+        pass is split there. The hop (written by :func:`conformill.output.gcode.write_gcode`):
+        a rapid straight up from the last cut centre A to a height at which the ball
+        clears the part by :data:`HOP_CLEARANCE` all along the XY segment to the next cut
+        centre B (:meth:`conformill.cutter.BallCutter.clear_height`), across, a rapid down
+        to where the ball is still that clear above B, and the plunge to B at the plunge
+        feed; gouge-free by construction, timed at ``rates``. The cutter then settles and
+        refines only the cut stretches. A lifted run at a pass's start or end is not cut
+        either. A run still lifted at the end of the batch waits for the next batch (or the
+        pass's end), so the program does not depend on the batches.
+        """
+        air = lift > self.hop_lift
+        if p.air is not None:  # the undecided run from the last batch
+            centres = np.vstack([p.air[0], centres])
+            tri = np.concatenate([p.air[1], tri])
+            air = np.concatenate([np.ones(len(p.air[0]), dtype=bool), air])
+            p.air = None
+        joined = p.last is not None
+        if joined:
+            centres = np.vstack([p.last[None], centres])
+            tri = np.concatenate([[p.last_tri], tri])
+            air = np.concatenate([[False], air])
+        n = len(centres)
+        d = np.diff(np.concatenate([[0], air.astype(np.int8), [0]]))
+        ra, rb = np.flatnonzero(d == 1), np.flatnonzero(d == -1)  # lifted runs [ra, rb)
+        end = n
+        if len(ra) and rb[-1] == n:  # lifted up to the batch's end: undecided
+            end = ra[-1]
+            p.air = (centres[end:], tri[end:])
+            ra, rb = ra[:-1], rb[:-1]
+        lead = 0
+        if len(ra) and ra[0] == 0:  # lifted from the pass's start (no centre before)
+            lead = rb[0]
+            self.n_hopped += int(lead)
+            ra, rb = ra[1:], rb[1:]
+        if lead >= end:
+            return
+        H = Hb = np.zeros(0)
+        if len(ra):
+            A, B = centres[ra - 1], centres[rb]
+            step = np.linalg.norm(np.diff(centres, axis=0), axis=1)
+            cum = np.concatenate([[0.0], np.cumsum(step)])
+            ride = (cum[rb] - cum[ra - 1]) / self.feed
+            # across at a height clear of the part along A -> B; down by rapid to where the
+            # ball is clear above B, then the plunge
+            H = np.maximum(np.maximum(A[:, 2], B[:, 2]),
+                           self.cutter.clear_height(A[:, :2], B[:, :2], clearance=HOP_CLEARANCE))
+            Hb = np.clip(self.cutter.clear_height(B[:, :2], B[:, :2], clearance=HOP_CLEARANCE), B[:, 2], H)
+            hop = ((H - A[:, 2]) + np.hypot(*(B[:, :2] - A[:, :2]).T) + (H - Hb)) / self.rapid \
+                + (Hb - B[:, 2]) / self.plunge
+            go = hop < ride
+            self.n_hops += int(go.sum())
+            self.n_hopped += int((rb - ra)[go].sum())
+            self.hop_saved += float((ride - hop)[go].sum())
+            ra, rb, H, Hb = ra[go], rb[go], H[go], Hb[go]
+        starts = np.concatenate([[lead], rb])
+        stops = np.concatenate([ra, [end]])
+        pcs = [centres[a:b] for a, b in zip(starts, stops)]
+        tris = [tri[a:b] for a, b in zip(starts, stops)]
+        if self.settle_tol > 0:
+            pcs, k, left, tris = self.cutter.settle_pieces(pcs, self.settle_tol, contacts=tris)
+            self.n_settled += k
+            self.n_settle_unresolved += left
+        pcs = self.cutter.refine_pieces(pcs, self.e)  # a hop's moves are not checked: above D
+        if joined:
+            pcs[0] = pcs[0][1:]
+        for k, c in enumerate(pcs):
+            if k > 0:  # a hop from the last piece's end to this piece's start: its centre heights
+                p.centres.append((float(H[k - 1]), float(Hb[k - 1])))
+            if len(c):
+                p.centres.append(c)
+        p.last, p.last_tri = centres[end - 1], int(tris[-1][-1])

@@ -110,6 +110,16 @@ class Job:
         less time (igea 2.1 against 3.7 s more than the default since session 24) and
         left the same or a lower scallop on seven of eight, for 1-15 points more feed
         (README, "Pencil passes", sessions 23-24).
+    hop_lift : float
+        Hop over the runs of a path whose CC points the drop-cutter lifts more than this
+        (mm) above their planned contact, where the hop (rapids clear of the part by 1 mm,
+        then the plunge) is quicker than riding the run at the feed
+        (:meth:`conformill.passes.PassBuilder._cut_hopping`); 0 (default): off. On igea
+        (h = 0.01) 3 mm gave 12-16 % less machining time and about 20 % less feed, the
+        reachable p99.9 up by 0.03-0.06 h, or by 0.003-0.007 h with the fold pencil
+        (README, "Hops over lifted runs", session 27).
+    rapid : float
+        The machine's rapid rate (mm/min) the hops are timed at.
     """
 
     pattern: str = "spiral"
@@ -133,6 +143,8 @@ class Job:
     pencil: bool = False
     pencil_density: float = 30.0
     pencil_search: str = "samples"
+    hop_lift: float = 0.0
+    rapid: float = 5000.0
 
 
 class _Timer:
@@ -153,7 +165,7 @@ def check_job(job: Job) -> None:
     if job.pattern not in PATTERNS:
         raise PlanningError(f"unknown pattern {job.pattern!r}; choose one of {', '.join(PATTERNS)}")
     check_params(job.tool_radius, job.scallop, job.tolerance)
-    for name in ("feed", "max_step", "clearance"):
+    for name in ("feed", "max_step", "clearance", "rapid"):
         v = getattr(job, name)
         if not np.isfinite(v) or v <= 0:
             raise PlanningError(f"{name.replace('_', '-')} must be a positive number, got {v}")
@@ -174,6 +186,8 @@ def check_job(job: Job) -> None:
     if job.pencil_search not in PENCIL_SEARCHES:
         raise PlanningError(f"pencil-search must be {' or '.join(map(repr, sorted(PENCIL_SEARCHES)))}, "
                             f"got {job.pencil_search!r}")
+    if not (np.isfinite(job.hop_lift) and job.hop_lift >= 0):
+        raise PlanningError(f"hop-lifted must be a number >= 0 (mm; 0: off), got {job.hop_lift}")
 
 
 def face_normals(V: np.ndarray, F: np.ndarray):
@@ -373,7 +387,8 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
     # in a worker thread where numba allows (passes.py; it builds the cutter's index while
     # the map is solved); the program is the same either way
     builder = PassBuilder(lambda: BallCutter(mesh.V, mesh.F, r), e, e_fwd, e_cvx, job.max_step, link_max,
-                          threaded=threads_can_overlap(), settle_tol=job.settle * h)
+                          threaded=threads_can_overlap(), settle_tol=job.settle * h,
+                          hop_lift=job.hop_lift, rates=(job.feed, job.plunge_feed or job.feed / 3, job.rapid))
     background = None
     search_args = (mesh.V, mesh.F, h)
     search_kw = {"search": job.pencil_search, "density": job.pencil_density, "settle_tol": job.settle * h}
@@ -454,7 +469,7 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
                 background.link_from(end, e, link_max)
         say("cutter", builder.fraction_cut())
         t_wait = time.perf_counter()
-        passes, pass_ids, lifts = builder.finish(progress=lambda f: say("cutter", f))
+        passes, pass_ids, lifts, hops = builder.finish(progress=lambda f: say("cutter", f))
         t_wait = time.perf_counter() - t_wait
         # forward and cutter: busy time (beside the pattern stage when threaded; then
         # cutter_wait is how long the plan waited for the cutter after the last path)
@@ -463,6 +478,8 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
             timer.t["cutter_wait"] = t_wait
         cc_paths, fwd_steps, n_retracts_link = builder.cc_paths, builder.fwd_steps, builder.n_retracts_link
         n_settled, n_unsettled = builder.n_settled, builder.n_settle_unresolved
+        hop_stats = {"lift_mm": job.hop_lift, "hops": builder.n_hops, "cc_points_not_cut": builder.n_hopped,
+                     "minutes_saved": builder.hop_saved}
         pencil = None
         if job.pencil:
             from conformill.pencil import link_chains, pencil_chains
@@ -482,7 +499,8 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
                     pencil = link_chains(cutter, found, e, link_max, start)
                 passes = passes + [cutter.tip(p) for p in pencil.passes]
                 pass_ids = pass_ids + [-1] * len(pencil.passes)
-    toolpath = ToolPath(passes=passes, safe_z=safe_z, pass_ids=pass_ids)
+                hops = hops + [None] * len(pencil.passes)
+    toolpath = ToolPath(passes=passes, safe_z=safe_z, pass_ids=pass_ids, hops=hops)
 
     # -- figures -----------------------------------------------------------------
     lift_all = np.concatenate(lifts) if lifts else np.zeros(0)
@@ -525,7 +543,7 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
                     "point that sets the step)",
         },
         "cutter": {"lift_mm": _stats(lift_all), "settled_points": n_settled,
-                   "settle_unresolved_moves": n_unsettled,
+                   "settle_unresolved_moves": n_unsettled, "hops": hop_stats,
                    "lift_over_tolerance_share": float(np.mean(lift_all > e)) if lift_all.size else 0.0},
         "pencil": pencil.stats if pencil is not None else None,
         "reachability": {"undercut_share": undercut_share,

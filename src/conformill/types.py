@@ -163,11 +163,17 @@ class ToolPath:
         For each pass, the index of the planned path(s) it starts with (for colouring);
         -1 for a pencil pass (:mod:`conformill.pencil`).
     safe_z : float
+    hops : list of (float, float) or None
+        For each pass, where the move into it from the pass before is a hop over a lifted
+        run (``Job.hop_lift``): the tool-tip heights of the hop's rapid across and of its
+        rapid down to above the pass start (then the plunge); ``None`` (or an empty list:
+        for all of them) for a retract to ``safe_z``.
     """
 
     passes: list
     safe_z: float
     pass_ids: list = field(default_factory=list)
+    hops: list = field(default_factory=list)
 
 
 @dataclass(frozen=True, eq=False)

@@ -54,6 +54,14 @@ def add_arguments(p) -> None:
                         "(samples, default), or the folds of the drop surface crossing an XY grid (folds: on the "
                         "scans measured an 18-51 %% quicker stage and the same or a lower scallop, for 1-15 points "
                         "more feed)")
+    p.add_argument("--hop-lifted", type=float, default=0.0, metavar="L",
+                   help="hop over runs of the path where the drop-cutter lifts the ball more than L mm above "
+                        "its planned contact (undercuts, pockets tighter than the ball) where the hop is quicker "
+                        "than riding the run: a rapid up to 1 mm clear of the part, across, and a plunge. A "
+                        "quicker plan and program, a little more material at the rims of those regions "
+                        "(0: off, default; see README)")
+    p.add_argument("--rapid", type=float, default=5000.0, metavar="F",
+                   help="the machine's rapid rate, mm/min, for deciding hops (5000)")
     p.add_argument("--max-step", type=float, default=10.0, metavar="L", help="longest forward step, mm (10)")
     p.add_argument("--threads", type=int, default=None, metavar="N",
                    help="threads for parallel stages (default all; with 1 the cutter runs after the pattern stage)")
@@ -101,7 +109,8 @@ def run(args) -> int:
               feed=args.feed, plunge_feed=args.plunge_feed, safe_z=args.safe_z, orient=args.orient,
               weights=args.weights, corners=_corners(args.corners), max_step=args.max_step, spindle=args.spindle,
               concave_steps=args.concave_steps, spacing=args.spacing, settle=args.settle, fit=args.fit,
-              pencil=args.pencil, pencil_density=args.pencil_density,
+              pencil=args.pencil, pencil_density=args.pencil_density, hop_lift=args.hop_lifted,
+              rapid=args.rapid,
               **({} if args.pencil_search is None else {"pencil_search": args.pencil_search}))
     from conformill.pipeline import check_job
 
@@ -136,6 +145,8 @@ def run(args) -> int:
     if job.pencil:  # only then: the default program's bytes stay as they were
         header["pencil"] = (f"samples per mm2 {job.pencil_density:g}" if job.pencil_search == "samples"
                             else f"folds, grid points per mm2 {job.pencil_density:g}")
+    if job.hop_lift > 0:  # likewise
+        header["hop lifted"] = f"runs lifted more than {job.hop_lift:g} mm, rapid {job.rapid:g}"
     with all_or_nothing(args.output, args.report, args.plot, args.html):
         t = time.perf_counter()
         stats = write_gcode(args.output, result.toolpath, feed=job.feed, plunge_feed=job.plunge_feed or job.feed / 3,

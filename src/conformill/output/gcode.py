@@ -16,7 +16,10 @@ in ``tests/test_gcode_rs274.py``), with no ``%`` delimiters, and it looks like t
     M5
     M30
 
-Rapids (``G0``) are only at the clearance height ``safe_z`` or vertical retracts to it.
+Rapids (``G0``) are only at the clearance height ``safe_z`` or vertical retracts to it;
+or, for a hop over a lifted run (``ToolPath.hops``), a vertical retract to the hop's
+height, a rapid across at it, and a vertical rapid down to where the ball is still clear of
+the part above the next pass's start, from which it plunges.
 Coordinates have 4 decimals (0.1 micron); ``-0.0000`` is written ``0.0000``; a cut move
 whose rounded coordinates equal the current position is dropped, and unchanged axis words
 are left out (they are modal). The output is a deterministic function of the inputs.
@@ -187,6 +190,11 @@ def _format_moves(Q: np.ndarray, C: np.ndarray) -> str:
     return _format_moves_nb(Q.astype(np.int64), C.astype(np.bool_)).tobytes().decode("ascii")
 
 
+def _ceil_ticks(z: float) -> int:
+    """A height rounded up to 1e-4 mm (a clearance height: never below the value)."""
+    return int(math.ceil(round(z * _SCALE, 6)))
+
+
 def _ticks(a) -> np.ndarray:
     """Coordinates rounded to integer multiples of 1e-4 mm (half to even)."""
     return np.rint(np.asarray(a, dtype=np.float64) * _SCALE).astype(np.int64)
@@ -234,6 +242,9 @@ def _program(toolpath, feed, plunge_feed, spindle, header):
     if not passes:
         raise PlanningError("G-code: the tool path has no passes")
     header = {} if header is None else dict(header)
+    hops = list(getattr(toolpath, "hops", None) or [None] * len(passes))
+    if len(hops) != len(passes):
+        raise PlanningError(f"G-code: the tool path has {len(passes)} passes but {len(hops)} hops")
 
     safe_t = int(_ticks(safe_z))
     safe_s = _num(safe_t)
@@ -253,6 +264,8 @@ def _program(toolpath, feed, plunge_feed, spindle, header):
     feed_len = plunge_len = rapid_len = 0.0
     cut_points = cut_moves = 0
     prev_xy = None  # tool XY after the last retract (ticks)
+    up_t = safe_t  # the height the tool is at above the next pass's start (ticks)
+    down_t = safe_t  # where a hop's rapid down ends (ticks)
     n_lines = 0  # lines inside the bulk blocks beyond one per ``lines`` entry
     for ip, P in enumerate(passes):
         P = np.asarray(P, dtype=np.float64)
@@ -269,14 +282,18 @@ def _program(toolpath, feed, plunge_feed, spindle, header):
                 f"G-code: pass {ip} point {i} is above the clearance height: z = {P[i, 2]:.4f} > safe_z = {safe_z:.4f}")
         cut_points += len(P)
         x0, y0, z0 = (int(v) for v in Q[0])
-        # rapid at safe Z to above the pass start, then vertical plunge
+        # rapid at safe Z (or at the hop's height) to above the pass start, then vertical plunge
         lines.append(f"G0 X{_num(x0)} Y{_num(y0)}")
         if prev_xy is not None:
             rapid_len += math.hypot(x0 - prev_xy[0], y0 - prev_xy[1]) / _SCALE
+        if up_t < safe_t and z0 < down_t < up_t:  # a hop: rapid down to where the ball is clear above the start
+            lines.append(f"G0 Z{_num(down_t)}")
+            rapid_len += (up_t - down_t) / _SCALE
+            up_t = down_t
         fw = fw_plunge if cur_f != fw_plunge else ""
         cur_f = fw_plunge
         lines.append(f"G1 Z{_num(z0)}" + (f" {fw}" if fw else ""))
-        plunge_len += (safe_t - z0) / _SCALE
+        plunge_len += (up_t - z0) / _SCALE
         # cut moves: only axes that change; moves that change nothing are dropped
         if len(Q) > 1:
             D = np.diff(Q, axis=0)
@@ -301,8 +318,18 @@ def _program(toolpath, feed, plunge_feed, spindle, header):
             last = Qm[-1] if len(Qm) else Q[0]
         else:
             last = Q[0]
-        lines.append(f"G0 Z{safe_s}")
-        rapid_len += (safe_t - int(last[2])) / _SCALE
+        # retract: to safe Z, or to the hop's height (rounded up) when the next pass is a hop
+        up_t = safe_t
+        if ip + 1 < len(passes) and hops[ip + 1] is not None:
+            across, down = (float(v) for v in hops[ip + 1])
+            if not (math.isfinite(across) and math.isfinite(down)):
+                raise PlanningError(f"G-code: the hop into pass {ip + 1} is not finite: {hops[ip + 1]}")
+            nxt = int(_ticks(np.asarray(passes[ip + 1], dtype=np.float64)[0, 2]))
+            up_t = min(max(_ceil_ticks(across), int(last[2]), nxt), safe_t)
+            down_t = _ceil_ticks(down)
+        if up_t == safe_t or up_t > int(last[2]):  # (a hop from its own height: no retract)
+            lines.append(f"G0 Z{_num(up_t)}")
+        rapid_len += (up_t - int(last[2])) / _SCALE
         prev_xy = (int(last[0]), int(last[1]))
     lines.append("M5")
     lines.append("M30")

@@ -16,7 +16,8 @@ plan's JSON report.
         [--plan-args "--hop-lifted 3"]
 
 ``--verify N`` then simulates each pattern's last program on the same mesh with N
-area-uniform samples (seed 0), outside the timed runs, and judges it as ``bench_raster.py``
+area-uniform samples (seed 0), after all the timed runs (a child forked from a parent that
+holds the mesh reports that memory as its own peak), and judges it as ``bench_raster.py``
 does: limit 1.05 h on the samples a 3-axis ball reaches (reach depth h), gouge limit e. It
 adds the reachable p99.9 and p99 (over h), the uncut share and the deepest gouge.
 
@@ -89,16 +90,18 @@ def main(argv=None) -> int:
                       f"(its process {w_igl:5.1f} s, {rss_igl:5.0f} MB) | ratio {w / h_igl:5.2f} "
                       f"(target <= 1.5) | {r['program']['cut_points']} CL points, "
                       f"{r['program']['feed_length_mm'] / 1000:.1f} m | {stages}", flush=True)
-            if args.verify > 0:
-                if mesh is None:
-                    from conformill.mesh.io import read_mesh
+        # after every timed run: a child forked from a parent that holds the mesh and the
+        # verify's samples reports the parent's memory as its own peak
+        for pat in args.patterns if args.verify > 0 else []:
+            if mesh is None:
+                from conformill.mesh.io import read_mesh
 
-                    mesh = read_mesh(args.mesh, scale=args.scale, validate=False)
-                checks[pat] = _verify(args, mesh, nc)
-                c = checks[pat]
-                print(f"{pat:8s} verify ({args.verify} samples, {c['seconds']:.0f} s): reachable p99.9 "
-                      f"{c['p999']:.3f} h, p99 {c['p99']:.3f} h, uncut {100 * c['uncut']:.3f} %, "
-                      f"gouge max {1000 * c['gouge']:.1f} um", flush=True)
+                mesh = read_mesh(args.mesh, scale=args.scale, validate=False)
+            checks[pat] = _verify(args, mesh, str(Path(tmp) / f"{pat}.nc"))
+            c = checks[pat]
+            print(f"{pat:8s} verify ({args.verify} samples, {c['seconds']:.0f} s): reachable p99.9 "
+                  f"{c['p999']:.3f} h, p99 {c['p99']:.3f} h, uncut {100 * c['uncut']:.3f} %, "
+                  f"gouge max {1000 * c['gouge']:.1f} um", flush=True)
     print()
     head = "| pattern | plan process (s) | peak RSS (MB) | igl.harmonic (s) | ratio | CL points | feed (m) |"
     print(head + (" reachable p99.9 / h | p99 / h | gouge max (um) |" if checks else ""))

@@ -17,6 +17,8 @@ length and the time for the knobs that densify the program:
   the named search (``--pencil-search``; session 23's runs, on f73ad9e, had ``folds`` as
   the default, so their ``pencil`` rows are the fold search); ``pencil folds, settle off`` /
   ``settle 1``: the fold search over a pattern with ``Job.settle`` 0 / 1 (session 24);
+* ``hop L`` (with ``, pencil folds`` and ``, density 20``): ``Job.hop_lift`` L (``--hop-lifted``,
+  session 27): the runs lifted more than L mm are hopped over where that is quicker;
 * ``fine``: the same job on the same surface split once more (every triangle into four at its
   edge midpoints, :func:`conformill.mesh.split.split_midpoints`; a planar split, so the surface and the
   drop-cutter's heights are the same): the per-vertex quadratic fit then works at half the

@@ -226,3 +226,24 @@ def test_cli_header_names_the_hops_only_when_on(tmp_path):
     assert main(common + ["-o", str(off)]) == 0
     assert "(param hop lifted: runs lifted more than 2 mm, rapid 5000)" in on.read_text()
     assert "hop" not in off.read_text()
+
+
+def test_linuxcnc_accepts_a_hopped_program(tmp_path):
+    import shutil
+
+    if shutil.which("rs274") is None:
+        pytest.skip("rs274 (linuxcnc-uspace) is not installed")
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from test_gcode_rs274 import _assert_clean, run_rs274
+
+    res = plan(GROOVE, _job("contour", 0.5))
+    assert res.report["cutter"]["hops"]["hops"] > 0
+    path = tmp_path / "hop.nc"
+    write_gcode(path, res.toolpath, feed=1000.0, plunge_feed=300.0)
+    rc, out, canon = run_rs274(path.read_text(), tmp_path)
+    _assert_clean(rc, out)
+    # every hop's rapid across and down are traverses in LinuxCNC's own reading
+    assert canon.count("STRAIGHT_TRAVERSE") >= 2 * res.report["cutter"]["hops"]["hops"]

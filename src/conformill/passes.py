@@ -217,9 +217,9 @@ class PassBuilder:
         ``passes`` are tool-tip polylines ``(k, 3)``; ``lifts`` the drop-cutter lifts of
         the CC points (mm); ``hops`` per pass the hop into it from the pass before, as
         the tool-tip heights of its rapid across and of its rapid down to above the pass
-        start (``None``: a retract to the safe height; see ``hop_lift``). ``progress(fraction)``, if given, is called while the cutter
-        works (:meth:`fraction_cut`, non-decreasing, last 1.0). Raises what the worker
-        raised.
+        start (``None``: a retract to the safe height; see ``hop_lift``).
+        ``progress(fraction)``, if given, is called while the cutter works
+        (:meth:`fraction_cut`, non-decreasing, last 1.0). Raises what the worker raised.
         """
         say = progress or (lambda f: None)
         if self._thread is None:

@@ -247,3 +247,15 @@ def test_linuxcnc_accepts_a_hopped_program(tmp_path):
     _assert_clean(rc, out)
     # every hop's rapid across and down are traverses in LinuxCNC's own reading
     assert canon.count("STRAIGHT_TRAVERSE") >= 2 * res.report["cutter"]["hops"]["hops"]
+
+
+def test_gcode_rejects_malformed_hops_without_a_traceback():
+    P = [np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 1.0]]), np.array([[5.0, 0.0, 1.0], [6.0, 0.0, 1.0]])]
+    with pytest.raises(PlanningError, match="two heights"):
+        format_gcode(ToolPath(passes=P, safe_z=10.0, hops=[None, 3.0]), feed=600.0)
+    # a hop given as an array of two heights
+    text = format_gcode(ToolPath(passes=P, safe_z=10.0, hops=[None, np.array([3.0, 2.0])]), feed=600.0)
+    assert "G0 Z3.0000\nG0 X5.0000 Y0.0000\nG0 Z2.0000\nG1 Z1.0000" in text
+    # a malformed next pass is reported as such, not as an index error
+    with pytest.raises(PlanningError, match="pass 1"):
+        format_gcode(ToolPath(passes=[P[0], np.zeros((0, 3))], safe_z=10.0, hops=[None, (3.0, 2.0)]), feed=600.0)

@@ -1052,7 +1052,8 @@ class BallCutter:
         Returns
         -------
         z : (k,) float64
-            ``-inf`` where no triangle is within reach of the segment.
+            ``-inf`` where no grid cell holding triangles is within reach of the segment
+            (a finite value does not mean a triangle is).
         """
         a = _as_points(a, 2, "a")
         b = _as_points(b, 2, "b")

@@ -38,7 +38,9 @@ BATCH = 32768
 #: starts early in the pattern stage (igea contour: 0.08 s after its start instead of
 #: 0.3 s, when ``BATCH`` CC points are there).
 FIRST_BATCH = 4096
-#: Least distance (mm) between the ball and the part on a hop's rapid move.
+#: Least distance (mm) between the ball and the part on a hop's rapids across and down
+#: (the rapid up starts at the last cut centre, like any retract; a hop is never above
+#: the safe height, which may be lower).
 HOP_CLEARANCE = 1.0
 
 
@@ -178,9 +180,11 @@ class PassBuilder:
     def end_xy(self):
         """XY of the ball centre the passes will end at, from the last piece handed over,
         before the worker gets there: the centre :meth:`_take` and :meth:`_cut` make of
-        that path's last sample (kept by the forward steps, ``settle`` and ``refine``).
-        ``None`` when the last piece is no path or the cutter is not built. A prediction
-        for work that can start early (the pencil's links); compare it with the passes."""
+        that path's last sample (kept by the forward steps, ``settle`` and ``refine``); with
+        ``hop_lift``, of the last CC point not lifted above it among the last 16 pieces
+        (the runs after it are not cut). ``None`` when the last piece is no path, the
+        cutter is not built or (with hops) no such point is found. A prediction for work
+        that can start early (the pencil's links); compare it with the passes."""
         pc = self._last_piece
         if pc is None or pc.kind != "path" or self.cutter is None:  # set once built, by either thread
             return None
@@ -447,8 +451,9 @@ class PassBuilder:
         if len(ra):
             A, B = centres[ra - 1], centres[rb]
             step = np.linalg.norm(np.diff(centres, axis=0), axis=1)
-            cum = np.concatenate([[0.0], np.cumsum(step)])
-            ride = (cum[rb] - cum[ra - 1]) / self.feed
+            # summed per run (not as a difference of running sums): the same figure
+            # whichever batch the run is decided in
+            ride = np.array([step[a - 1:b].sum() for a, b in zip(ra, rb)]) / self.feed
             # across at a height clear of the part along A -> B; down by rapid to where the
             # ball is clear above B, then the plunge
             H = np.maximum(np.maximum(A[:, 2], B[:, 2]),

@@ -57,9 +57,10 @@ def add_arguments(p) -> None:
     p.add_argument("--hop-lifted", type=float, default=0.0, metavar="L",
                    help="hop over runs of the path where the drop-cutter lifts the ball more than L mm above "
                         "its planned contact (undercuts, pockets tighter than the ball) where the hop is quicker "
-                        "than riding the run: a rapid up to 1 mm clear of the part, across, and a plunge. A "
-                        "shorter program (igea, L = 3: 12-16 %% less machining time) and a slightly quicker "
-                        "plan, a little more material at the rims of those regions (0: off, default; see README)")
+                        "than riding the run: a rapid up to 1 mm clear of the part (never above the safe height), "
+                        "across, and a plunge. A shorter program (igea, L = 3: 12-16 %% less time at the feeds, "
+                        "rapids not counted) and a slightly quicker plan, a little more material at the rims of "
+                        "those regions (0: off, default; see README)")
     p.add_argument("--rapid", type=float, default=5000.0, metavar="F",
                    help="the machine's rapid rate, mm/min, for deciding hops (5000)")
     p.add_argument("--max-step", type=float, default=10.0, metavar="L", help="longest forward step, mm (10)")

@@ -242,7 +242,8 @@ def _program(toolpath, feed, plunge_feed, spindle, header):
     if not passes:
         raise PlanningError("G-code: the tool path has no passes")
     header = {} if header is None else dict(header)
-    hops = list(getattr(toolpath, "hops", None) or [None] * len(passes))
+    hops = getattr(toolpath, "hops", None)
+    hops = [None] * len(passes) if hops is None or len(hops) == 0 else list(hops)
     if len(hops) != len(passes):
         raise PlanningError(f"G-code: the tool path has {len(passes)} passes but {len(hops)} hops")
 
@@ -321,10 +322,17 @@ def _program(toolpath, feed, plunge_feed, spindle, header):
         # retract: to safe Z, or to the hop's height (rounded up) when the next pass is a hop
         up_t = safe_t
         if ip + 1 < len(passes) and hops[ip + 1] is not None:
-            across, down = (float(v) for v in hops[ip + 1])
+            try:
+                across, down = (float(v) for v in hops[ip + 1])
+            except (TypeError, ValueError):
+                raise PlanningError(f"G-code: the hop into pass {ip + 1} must be two heights or None, "
+                                    f"got {hops[ip + 1]!r}") from None
             if not (math.isfinite(across) and math.isfinite(down)):
                 raise PlanningError(f"G-code: the hop into pass {ip + 1} is not finite: {hops[ip + 1]}")
-            nxt = int(_ticks(np.asarray(passes[ip + 1], dtype=np.float64)[0, 2]))
+            Pn = np.asarray(passes[ip + 1], dtype=np.float64)
+            # (a malformed next pass is reported when its turn comes)
+            ok = Pn.ndim == 2 and Pn.shape[1:] == (3,) and len(Pn) and math.isfinite(Pn[0, 2])
+            nxt = int(_ticks(Pn[0, 2])) if ok else int(last[2])
             up_t = min(max(_ceil_ticks(across), int(last[2]), nxt), safe_t)
             down_t = _ceil_ticks(down)
         if up_t == safe_t or up_t > int(last[2]):  # (a hop from its own height: no retract)

@@ -134,32 +134,20 @@ def test_hopped_program_is_gouge_free_and_its_rapids_clear_the_part(pattern, tmp
 def test_hops_do_not_depend_on_the_batches():
     # a lifted run that reaches a batch's end waits for the next batch: any batch size
     # gives the same passes and hops
-    recorded = {}
+    import sys
+    from pathlib import Path
 
-    import conformill.pipeline as pipeline
+    sys.path.insert(0, str(Path(__file__).parent))
+    from test_passes import record_plan
 
-    class Recording(PassBuilder):
-        def __init__(self, make_cutter, *args, **kw):
-            super().__init__(make_cutter, *args, **kw)
-            recorded.update(args=args, kw=kw, make=make_cutter, pieces=[])
-
-        def add(self, piece):
-            recorded["pieces"].append(piece)
-            super().add(piece)
-
-    mp = pytest.MonkeyPatch()
-    mp.setattr(pipeline, "PassBuilder", Recording)
-    try:
-        res = plan(GROOVE, _job("contour", 0.5))
-    finally:
-        mp.undo()
+    res, recorded = record_plan(GROOVE, _job("contour", 0.5))
     assert res.report["cutter"]["hops"]["hops"] > 0
     kw = dict(recorded["kw"])
     for batch, first in [(1, 1), (7, 3), (50, 50)]:
         kw.update(threaded=False, batch=batch, first_batch=first)
-        b = PassBuilder(recorded["make"], *recorded["args"], **kw)
+        b = PassBuilder(recorded["make_cutter"], *recorded["args"], **kw)
         if batch == 1:  # the pencil's links start early from where the passes will end
-            b.cutter = recorded["make"]()
+            b.cutter = recorded["make_cutter"]()
             for pc in recorded["pieces"]:
                 b.add(pc)
             predicted = b.end_xy()

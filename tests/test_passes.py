@@ -32,6 +32,12 @@ def recorded():
     V = part.V.copy()
     V[:, 2] -= np.maximum(3.0 - np.abs(V[:, 0] - 5.0), 0.0) * np.tan(np.radians(30.0))
     part = Mesh(V=V, F=part.F, name="grooved")
+    return record_plan(part, Job(pattern="contour", tool_radius=R, scallop=0.05, tolerance=0.01))
+
+
+def record_plan(part, job):
+    """``(result, seen)``: ``plan(part, job)`` and what its pass builder was given:
+    ``seen["args"]``, ``seen["kw"]``, ``seen["make_cutter"]``, ``seen["pieces"]``."""
     seen = {}
 
     class Recording(PassBuilder):
@@ -47,7 +53,7 @@ def recorded():
     mp = pytest.MonkeyPatch()
     mp.setattr(pipeline, "PassBuilder", Recording)
     try:
-        res = plan(part, Job(pattern="contour", tool_radius=R, scallop=0.05, tolerance=0.01))
+        res = plan(part, job)
     finally:
         mp.undo()
     return res, seen

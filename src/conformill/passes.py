@@ -101,7 +101,7 @@ class PassBuilder:
         (:meth:`conformill.cutter.BallCutter.settle`); 0: not checked.
     hop_lift : float
         Runs of centres lifted more than this above their planned contact (mm) are hopped
-        over where that is quicker (:meth:`_cut_hopping`); 0: off.
+        over where that is quicker (:meth:`_cut_centres`); 0: off.
     rates : (float, float, float)
         Feed, plunge feed and rapid rate (mm/min) the hops are timed at.
     threaded : bool
@@ -194,12 +194,8 @@ class PassBuilder:
         try:
             if self.hop_lift > 0:  # the last CC point cut: not lifted above the limit
                 for q in reversed(self._recent):  # (the runs after it are not cut)
-                    X3, cc, nn = self._forward(q)
-                    if q.kind != "path":
-                        if float(np.linalg.norm(np.diff(X3, axis=0), axis=1).sum()) > self.link_max:
-                            continue  # a retract: nothing cut
-                        cc, nn = cc[1:-1], nn[1:-1]
-                    if len(cc):
+                    _, cc, nn = self._forward(q)
+                    if cc is not None and len(cc):  # (a retract cuts nothing)
                         c, lift = self.cutter.cl_from_cc(cc, nn)
                         ok = np.flatnonzero(lift <= self.hop_lift)
                         if ok.size:
@@ -306,7 +302,9 @@ class PassBuilder:
                 ended = self._queue.get() is None
 
     def _forward(self, pc):
-        """The piece's dense samples in cutting order and its CC points and normals."""
+        """The piece's dense samples in cutting order and the CC points and normals it
+        adds to the pass: all of a path's, the inner ones of a link cut on the surface;
+        ``None`` for both where the link is longer than ``link_max`` (a retract)."""
         c = pc.curve
         S = c.sample
         order = slice(None, None, -1) if pc.reverse else slice(None)
@@ -316,7 +314,12 @@ class PassBuilder:
         # the fitted (smooth) normal: with the facet's the contact would sit exactly on
         # the CC point, but the centre path would jitter at every edge; measured, it
         # changes the scallop by less than 1 % (cad_like_0, h = 0.01)
-        return X3, X3[idx], S.n[order][idx]
+        cc, nn = X3[idx], S.n[order][idx]
+        if pc.kind == "path":
+            return X3, cc, nn
+        if float(np.linalg.norm(np.diff(X3, axis=0), axis=1).sum()) <= self.link_max:
+            return X3, cc[1:-1], nn[1:-1]
+        return X3, None, None
 
     def _take(self, pc):
         t0 = time.perf_counter()
@@ -328,26 +331,20 @@ class PassBuilder:
                 self.fwd_steps.append(np.linalg.norm(np.diff(cc, axis=0), axis=1))
             if cur.path_id < 0:
                 cur.path_id = pc.index
+        if cc is not None:
             cur.cc.append(cc)
             cur.nn.append(nn)
             cur.pending += len(cc)
             cur.units += len(X3)
         else:
-            L = float(np.linalg.norm(np.diff(X3, axis=0), axis=1).sum())
-            if L <= self.link_max:
-                cur.cc.append(cc[1:-1])
-                cur.nn.append(nn[1:-1])
-                cur.pending += len(cur.cc[-1])
-                cur.units += len(X3)
-            else:
-                self.n_retracts_link += 1
-                self._units_cut += len(X3)  # nothing to cut: a retract
-                self.timings["forward"] += time.perf_counter() - t0
-                self._cut(cur)
-                self._end(cur)
-                self._done.append(cur)
-                self._passes.append(_Pass(-1))
-                return
+            self.n_retracts_link += 1
+            self._units_cut += len(X3)  # nothing to cut: a retract
+            self.timings["forward"] += time.perf_counter() - t0
+            self._cut(cur)
+            self._end(cur)
+            self._done.append(cur)
+            self._passes.append(_Pass(-1))
+            return
         self.timings["forward"] += time.perf_counter() - t0
         if cur.pending >= self._next_batch:
             self._next_batch = min(2 * self._next_batch, self.batch)
@@ -379,49 +376,35 @@ class PassBuilder:
         if len(cc):
             centres, lift, tri = self.cutter.cl_from_cc(cc, nn, contacts=True)  # finite, or it raises
             p.lifts.append(lift)
-            if self.hop_lift > 0:
-                self._cut_hopping(p, centres, lift, tri)
-                self._units_cut += units
-                self.timings["cutter"] += time.perf_counter() - t0
-                return
-            # The move from the last batch's end into this batch is checked here.
-            if p.last is not None:
-                centres = np.vstack([p.last[None], centres])
-                tri = np.concatenate([[p.last_tri], tri])
-            # no move floats more than settle_tol above the drop surface (the material a
-            # chord leaves over a groove the ball cannot enter), then no move cuts more
-            # than e / 2 into the part (an exact bound): half of the gouge budget e, the
-            # other half left to the mesh facets between samples
-            if self.settle_tol > 0:
-                centres, n, left, tri = self.cutter.settle(centres, self.settle_tol, contacts=tri)
-                self.n_settled += n
-                self.n_settle_unresolved += left
-            centres = self.cutter.refine(centres, self.e)
-            if p.last is not None:
-                centres = centres[1:]
-            p.centres.append(centres)
-            p.last = centres[-1]  # settle and refine keep the ends: tri[-1] is its contact
-            p.last_tri = int(tri[-1])
+            self._cut_centres(p, centres, lift, tri)
         self._units_cut += units
         self.timings["cutter"] += time.perf_counter() - t0
 
-    def _cut_hopping(self, p: _Pass, centres, lift, tri):
-        """:meth:`_cut` where runs of centres lifted more than ``hop_lift`` are hopped over.
+    def _cut_centres(self, p: _Pass, centres, lift, tri):
+        """Gouge-safe moves through one batch's centres of pass ``p``, joined to the last
+        batch's end (the move into the batch is checked here).
 
-        Such a run is where the ball cannot reach its planned contact (an undercut, a
-        pocket tighter than the ball): it rides on material that other passes mostly cut.
-        Where a hop is quicker than riding the run at the feed, the run is not cut and the
-        pass is split there. The hop (written by :func:`conformill.output.gcode.write_gcode`):
-        a rapid straight up from the last cut centre A to a height at which the ball
-        clears the part by :data:`HOP_CLEARANCE` all along the XY segment to the next cut
-        centre B (:meth:`conformill.cutter.BallCutter.clear_height`), across, a rapid down
-        to where the ball is still that clear above B, and the plunge to B at the plunge
-        feed; gouge-free by construction, timed at ``rates``. The cutter then settles and
-        refines only the cut stretches. A lifted run at a pass's start or end is not cut
-        either. A run still lifted at the end of the batch waits for the next batch (or the
-        pass's end), so the program does not depend on the batches.
+        No move floats more than ``settle_tol`` above the drop surface (the material a
+        chord leaves over a groove the ball cannot enter), then no move cuts more than
+        ``e / 2`` into the part (an exact bound): half of the gouge budget e, the other
+        half left to the mesh facets between samples.
+
+        With ``hop_lift``, runs of centres lifted more than it are hopped over. Such a run
+        is where the ball cannot reach its planned contact (an undercut, a pocket tighter
+        than the ball): it rides on material that other passes mostly cut. Where a hop is
+        quicker than riding the run at the feed, the run is not cut and the pass is split
+        there. The hop (written by :func:`conformill.output.gcode.write_gcode`): a rapid
+        straight up from the last cut centre A to a height at which the ball clears the
+        part by :data:`HOP_CLEARANCE` all along the XY segment to the next cut centre B
+        (:meth:`conformill.cutter.BallCutter.clear_height`), across, a rapid down to where
+        the ball is still that clear above B, and the plunge to B at the plunge feed;
+        gouge-free by construction, timed at ``rates``. Only the cut stretches are
+        settled and refined (together: the same points as one call each). A lifted run at
+        a pass's start or end is not cut either. A run still lifted at the end of the
+        batch waits for the next batch (or the pass's end), so the program does not
+        depend on the batches.
         """
-        air = lift > self.hop_lift
+        air = lift > self.hop_lift if self.hop_lift > 0 else np.zeros(len(lift), dtype=bool)
         if p.air is not None:  # the undecided run from the last batch
             centres = np.vstack([p.air[0], centres])
             tri = np.concatenate([p.air[1], tri])
@@ -475,7 +458,7 @@ class PassBuilder:
             self.n_settled += k
             self.n_settle_unresolved += left
         pcs = self.cutter.refine_pieces(pcs, self.e)  # a hop's moves are not checked: above D
-        if joined:
+        if joined:  # settle and refine keep the ends: the last batch's end is already there
             pcs[0] = pcs[0][1:]
         for k, c in enumerate(pcs):
             if k > 0:  # a hop from the last piece's end to this piece's start: its centre heights

@@ -138,7 +138,7 @@ def run(args) -> int:
     header = {
         "mesh": args.mesh, "pattern": job.pattern, "tool": f"ball R{job.tool_radius:g} (D{2 * job.tool_radius:g})",
         "scallop": job.scallop, "tolerance": job.tolerance, "feed": job.feed,
-        "plunge_feed": job.plunge_feed or job.feed / 3, "safe_z": round(result.toolpath.safe_z, 4),
+        "plunge_feed": job.plunge_rate, "safe_z": round(result.toolpath.safe_z, 4),
         "scale": args.scale, "orient": job.orient, "weights": job.weights, "concave steps": job.concave_steps,
         "spacing": job.spacing, "settle": job.settle, "fit": job.fit,
         "programmed point": "tool tip", "units": "mm",
@@ -150,7 +150,7 @@ def run(args) -> int:
         header["hop lifted"] = f"runs lifted more than {job.hop_lift:g} mm, rapid {job.rapid:g}"
     with all_or_nothing(args.output, args.report, args.plot, args.html):
         t = time.perf_counter()
-        stats = write_gcode(args.output, result.toolpath, feed=job.feed, plunge_feed=job.plunge_feed or job.feed / 3,
+        stats = write_gcode(args.output, result.toolpath, feed=job.feed, plunge_feed=job.plunge_rate,
                             spindle=job.spindle, header=header)
         report["timings_s"]["gcode"] = time.perf_counter() - t
         report["program"] = stats

@@ -54,6 +54,7 @@ import math
 
 import numpy as np
 from numba import njit, prange
+from numba import types as _nt
 
 from conformill.errors import MeshError, PlanningError
 from conformill.geometry.closest import closest_on_triangle
@@ -85,6 +86,21 @@ _SUPPORT_TOL = 1e-9
 _CHUNK = 256
 #: Upper bound on grid cells (memory); the cell size grows when exceeded.
 _MAX_CELLS = 4_000_000
+
+# Explicit signatures of the kernels that other kernels call from several places: one
+# compiled version each. Left to inference, a literal argument (``-1`` for "no warm
+# start"), an omitted default or an int32 triangle index each made another
+# specialisation, compiled again on a fresh install (``_drop_point`` three times).
+_F8, _I8, _BOOL = _nt.float64, _nt.int64, _nt.boolean
+_M2, _V1, _I1, _I4 = _nt.float64[:, ::1], _nt.float64[::1], _nt.int64[::1], _nt.int32[::1]
+#: ``T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, CP``: the grid a drop scans
+_GRID_ARGS = (_M2, _M2, _F8, _F8, _F8, _I8, _I8, _I1, _I4, _V1, _M2, _M2)
+_TRI_DROP_SIG = _F8(_F8, _F8, _F8, _F8, _M2, _I8)
+_DROP_POINT_SIG = _nt.Tuple((_F8, _I8))(_F8, _F8, _F8, _F8, *_GRID_ARGS, _I8, _I1, _V1, _F8, _BOOL)
+_SET_DROP_SIG = _F8(_F8, _F8, _F8, _F8, _M2, _I1, _I8)
+_GROW_SIG = _nt.UniTuple(_V1, 4)(_V1, _V1, _V1, _V1, _I8, _I8)
+_CHECK_MOVE_SIG = _nt.Tuple((_F8, _F8, _F8, _I8, _V1, _V1, _V1, _V1))(
+    *([_F8] * 10), _I8, *_GRID_ARGS, _I8, _I1, _V1, _V1, _V1, _V1, _V1)
 
 
 # --------------------------------------------------------------------------------------
@@ -139,7 +155,7 @@ def _seg_drop(px, py, r2, ax, ay, az, bx, by, bz):
     return _arc_max(r2 - d * d, wx * ux + wy * uy, 0.0, L, (bz - az) / L, az)
 
 
-@njit(cache=True, nogil=True)
+@njit(_TRI_DROP_SIG, cache=True, nogil=True)
 def _tri_drop(px, py, r, r2, T, t):
     """Drop height of the ball centre onto triangle ``t`` (facet, edges, vertices).
 
@@ -200,7 +216,7 @@ def _set_top(x, y, r, r2, T, W, nw):
     return z, t
 
 
-@njit(cache=True, nogil=True)
+@njit(_SET_DROP_SIG, cache=True, nogil=True)
 def _set_drop(x, y, r, r2, T, W, nw):
     """Drop height at ``(x, y)`` over the triangles ``W[:nw]`` only: :func:`_set_top`'s height."""
     return _set_top(x, y, r, r2, T, W, nw)[0]
@@ -309,9 +325,9 @@ def _scan_cell(px, py, r, r2, T, B, cstart, ctri, EB, c, hc, best, besttri):
     return best, besttri
 
 
-@njit(cache=True, nogil=True)
+@njit(_DROP_POINT_SIG, cache=True, nogil=True)
 def _drop_point(px, py, r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, CP,
-                warm, cid, cbound, floor, first=False):
+                warm, cid, cbound, floor, first):
     """Drop height at one point; returns (height, contact triangle or -1).
 
     With a warm start (the previous point's contact triangle) or a finite ``floor`` (a
@@ -454,7 +470,7 @@ def _piece_ok(r, d0, d1, l2, floor2):
     return fa + ts * (fb - fa - l2) + ts * ts * l2 >= floor2
 
 
-@njit(cache=True, nogil=True)
+@njit(_GROW_SIG, cache=True, nogil=True)
 def _grow(q0, q1, e0, e1, k, need):
     """Buffers of at least ``need`` entries holding the first ``k`` of the old ones."""
     cap = q0.shape[0]
@@ -481,11 +497,11 @@ def _chord_drop(ax, ay, az, vx, vy, vz, t, r, r2, T, B, gx0, gy0, cell, ncx, ncy
     """
     zz = az + t * vz
     h, tri = _drop_point(ax + t * vx, ay + t * vy, r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri,
-                         czmax, EB, CP, warm, cid, cbound, zz)
+                         czmax, EB, CP, warm, cid, cbound, zz, False)
     return h, h - zz, (tri if tri >= 0 else warm)
 
 
-@njit(cache=True, nogil=True)
+@njit(_CHECK_MOVE_SIG, cache=True, nogil=True)
 def _check_move(ax, ay, az, vx, vy, vz, r, thresh, floor2, l_safe, max_depth, T, B, gx0, gy0, cell,
                 ncx, ncy, cstart, ctri, czmax, EB, CP, warm, cid, cbound, q0, q1, e0, e1):
     """Bisection of one move (see ``_worst_points``).
@@ -632,7 +648,7 @@ def _holding(px, py, pz, t, r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri,
     if t >= 0 and abs(_tri_drop(px, py, r, r2, T, t) - pz) <= _SUPPORT_TOL:
         return t
     return _drop_point(px, py, r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, CP,
-                       -1, cid, cbound, pz - _FLOOR_SLACK)[1]
+                       -1, cid, cbound, pz - _FLOOR_SLACK, False)[1]
 
 
 @njit(cache=True, nogil=True, parallel=True)
@@ -678,7 +694,8 @@ def _highest_floats(P, seg, tri, steps, eps, r, T, B, gx0, gy0, cell, ncx, ncy, 
                         tm = tv
                         meet = True
                 h, k = _drop_point(ax + tm * vx, ay + tm * vy, r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart,
-                                   ctri, czmax, EB, CP, kl if tm - tl < tr - tm else kr, cid, cbound, -np.inf)
+                                   ctri, czmax, EB, CP, kl if tm - tl < tr - tm else kr, cid, cbound, -np.inf,
+                                   False)
                 lift = az + tm * vz - h
                 if not math.isfinite(lift):
                     lift = -np.inf

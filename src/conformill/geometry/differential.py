@@ -35,6 +35,7 @@ import warnings
 
 import numpy as np
 from numba import njit, prange
+from numba import types as _nt
 
 from conformill.errors import ConformillError
 from conformill.types import SurfaceFrame
@@ -101,7 +102,13 @@ def _ring_csr(F, n):
 # --------------------------------------------------------------------------------------
 
 
-@njit(cache=True, nogil=True)
+#: One compiled version for its callers (a literal ``True`` or ``0`` made more; see
+#: ``conformill.cutter._DROP_POINT_SIG``).
+_FIT_ONE_SIG = _nt.float64(_nt.int64, _nt.int64[::1], _nt.int64, _nt.float64[:, ::1], _nt.float64[:, ::1],
+                           _nt.float64[:, :, ::1], _nt.float64[::1], _nt.boolean)
+
+
+@njit(_FIT_ONE_SIG, cache=True, nogil=True)
 def _fit_one(i, ids, cnt, V, uv, coef, rc_out, quadratic):
     """Fit at vertex ``i`` over ``i`` and ``ids[:cnt]``; write ``coef[i]`` (6, 3).
 

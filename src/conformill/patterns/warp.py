@@ -97,7 +97,8 @@ class Warp:
     def fraction(self, s, tau):
         """Fraction ``x`` and its derivative ``dx/ds`` at levels ``s`` and ``tau`` (bilinear)."""
         tau = np.ascontiguousarray(tau, dtype=np.float64)
-        s = np.ascontiguousarray(np.broadcast_to(np.asarray(s, dtype=np.float64), tau.shape))
+        # a writable copy: a read-only view (broadcast_to) would compile another version
+        s = np.array(np.broadcast_to(np.asarray(s, dtype=np.float64), tau.shape))
         x, dx = _bilinear(self.G, s.reshape(-1), tau.reshape(-1), self.closed)
         return x.reshape(tau.shape), dx.reshape(tau.shape)
 

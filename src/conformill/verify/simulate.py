@@ -184,7 +184,14 @@ def _grid_fill(A, B, r, lo, cell, dims, start):
     return items
 
 
-@nb.njit(cache=True)
+#: One compiled version for its callers (the literal ``-1`` of the first ray made another;
+#: see ``conformill.cutter._DROP_POINT_SIG``).
+_CAST_ONE_SIG = nb.int64(nb.int64, *([nb.float64[:, ::1]] * 5), nb.float64[::1], nb.float64, nb.float64[::1],
+                         nb.float64, nb.int64[::1], nb.int64[::1], nb.int32[::1], nb.float64, nb.int64,
+                         nb.float64[::1], nb.float64[::1], nb.int64[::1], nb.int64[::1])
+
+
+@nb.njit(_CAST_ONE_SIG, cache=True)
 def _cast_one(i, P, N, A, B, Mid, Rb, r, lo, cell, dims, start, items, tcap, prev, t_out, g_out, hit_out, gj_out):
     """One ray (see :func:`_cast`); returns the capsule hit (seed for the next sample)."""
     rr = r * r

@@ -624,7 +624,7 @@ def _worst_points(P, seg, r, thresh, floor2, l_safe, max_depth, T, B, gx0, gy0, 
     return wt, wd, wz
 
 
-@njit(cache=True, nogil=True, inline="always")
+@njit(cache=True, nogil=True)
 def _contact_slope(px, py, pz, t, T, vx, vy):
     """Slope ``dD/dt`` of the drop surface along ``(vx, vy)`` at the centre ``p`` resting
     on triangle ``t``: ``D``'s unit normal there is ``(p - q) / r`` with ``q`` the contact

@@ -3,11 +3,18 @@
 from __future__ import annotations
 
 from numba import njit
+from numba import types as _nt
 
 __all__ = ["closest_on_triangle"]
 
 
-@njit(cache=True, nogil=True, inline="always")
+#: Compiled once and called (not inlined by numba into each caller: the cutter's settle
+#: kernel, the fold search and the verifier's distances each held copies, and compiling
+#: them was most of those kernels' first-run time).
+_SIG = _nt.UniTuple(_nt.float64, 3)(*([_nt.float64] * 12))
+
+
+@njit(_SIG, cache=True, nogil=True)
 def closest_on_triangle(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz):
     """Point of triangle ``abc`` nearest to ``p``, as ``(qx, qy, qz)``.
 

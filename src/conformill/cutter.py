@@ -833,7 +833,8 @@ def _tables(V, F, r):
 
 @njit(cache=True, nogil=True)
 def _build_grid(T, B, r, gx0, gy0, cell, ncx, ncy):
-    """CSR lists of triangles per cell (by XY box overlap) and the cells' highest top."""
+    """CSR lists of triangles per cell (by XY box overlap, in triangle order) and the
+    cells' highest top; :func:`_grid_tables` continues once each cell's list is sorted."""
     m = B.shape[0]
     counts = np.zeros(ncx * ncy + 1, dtype=np.int64)
     for t in range(m):
@@ -860,15 +861,12 @@ def _build_grid(T, B, r, gx0, gy0, cell, ncx, ncy):
                 fill[c] += 1
                 if B[t, 4] > czmax[c]:
                     czmax[c] = B[t, 4]
-    # highest triangles first in each cell, so that a cell's scan can stop early
-    for c in range(ncx * ncy):
-        s0 = cstart[c]
-        s1 = cstart[c + 1]
-        if s1 - s0 > 1:
-            seg = ctri[s0:s1].copy()
-            o = np.argsort(-B[seg, 4], kind="mergesort")
-            for e in range(s1 - s0):
-                ctri[s0 + e] = seg[o[e]]
+    return cstart, ctri, czmax
+
+
+@njit(cache=True, nogil=True)
+def _grid_tables(T, B, r, cstart, ctri, ncx, ncy):
+    """The entries' XY boxes and tops, and each cell's bounding plane (see :func:`_build_grid`)."""
     # the XY box and top of every entry, in entry order: the scan reads memory in sequence
     EB = np.empty((ctri.shape[0], 5), dtype=np.float64)
     for e in range(ctri.shape[0]):
@@ -902,7 +900,7 @@ def _build_grid(T, B, r, gx0, gy0, cell, ncx, ncy):
         CP[c, 3] = r * gx / k
         CP[c, 4] = r * gy / k
         CP[c, 5] = r * k
-    return cstart, ctri, czmax, EB, CP
+    return EB, CP
 
 
 # --------------------------------------------------------------------------------------
@@ -986,7 +984,13 @@ class BallCutter:
         self._rank = np.empty_like(order)  # input face -> its row in the reordered tables
         self._rank[order] = np.arange(len(order))
         self._grid = (float(gmin[0]), float(gmin[1]), cell, ncx, ncy)
-        self._cstart, self._ctri, self._czmax, self._EB, self._CP = _build_grid(self._T, self._B, radius, gmin[0], gmin[1], cell, ncx, ncy)
+        cstart, ctri, czmax = _build_grid(self._T, self._B, radius, gmin[0], gmin[1], cell, ncx, ncy)
+        # highest triangles first in each cell, so that a cell's scan can stop early (one
+        # stable sort of all entries by cell, then top: ties keep the triangle order)
+        cells = np.repeat(np.arange(ncx * ncy), np.diff(cstart))
+        ctri = np.ascontiguousarray(ctri[np.lexsort((-self._B[ctri, 4], cells))])
+        self._cstart, self._ctri, self._czmax = cstart, ctri, czmax
+        self._EB, self._CP = _grid_tables(self._T, self._B, radius, cstart, ctri, ncx, ncy)
         w = int(math.ceil(2 * radius / cell)) + 2
         self._maxwin = w * w
         log.debug("BallCutter: %d triangles, grid %d x %d cells of %.3g mm, %d entries",

@@ -87,10 +87,11 @@ _CHUNK = 256
 #: Upper bound on grid cells (memory); the cell size grows when exceeded.
 _MAX_CELLS = 4_000_000
 
-# Explicit signatures of the kernels that other kernels call from several places: one
-# compiled version each. Left to inference, a literal argument (``-1`` for "no warm
-# start"), an omitted default or an int32 triangle index each made another
-# specialisation, compiled again on a fresh install (``_drop_point`` three times).
+# Explicit signatures of the kernels that other kernels call: one compiled version each.
+# Left to inference, a literal argument (``-1`` for "no warm start"), an omitted default
+# or an int32 triangle index each made another specialisation, compiled again on a fresh
+# install (``_drop_point`` three times). With a signature numba compiles (or loads from
+# its cache) when this module is imported, not at the first call.
 _F8, _I8, _BOOL = _nt.float64, _nt.int64, _nt.boolean
 _M2, _V1, _I1, _I4 = _nt.float64[:, ::1], _nt.float64[::1], _nt.int64[::1], _nt.int32[::1]
 #: ``T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, CP``: the grid a drop scans

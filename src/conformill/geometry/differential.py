@@ -102,7 +102,7 @@ def _ring_csr(F, n):
 # --------------------------------------------------------------------------------------
 
 
-#: One compiled version for its callers (a literal ``True`` or ``0`` made more; see
+#: One compiled version for its callers (a literal ``True`` made another; see
 #: ``conformill.cutter._DROP_POINT_SIG``).
 _FIT_ONE_SIG = _nt.float64(_nt.int64, _nt.int64[::1], _nt.int64, _nt.float64[:, ::1], _nt.float64[:, ::1],
                            _nt.float64[:, :, ::1], _nt.float64[::1], _nt.boolean)

@@ -1228,8 +1228,7 @@ class BallCutter:
             return []
         P, check, starts = _stack_pieces(pieces)
         P, starts = self._refine(P, check, tol, max_iter, max_depth, starts)
-        bounds = np.append(starts, len(P))
-        return [P[bounds[i]:bounds[i + 1]] for i in range(len(pieces))]
+        return np.split(P, starts[1:])
 
     def _refine(self, P, check, tol, max_iter, max_depth, track):
         """The rounds of :meth:`refine` on the moves flagged in ``check``; ``track``: indices
@@ -1256,8 +1255,7 @@ class BallCutter:
             unknown = np.flatnonzero(np.isnan(newpts[:, 2]))
             if unknown.size:
                 newpts[unknown, 2] = self.drop(newpts[unknown, :2])
-            P, check = _insert(P, seg_bad, newpts)
-            track = track + np.searchsorted(seg_bad, track, side="left")
+            P, check, track = _insert(P, seg_bad, newpts, track)
         else:
             if check.any():
                 # still undecided after max_iter rounds: halve those moves until no piece
@@ -1377,10 +1375,9 @@ class BallCutter:
         P, check, starts = _stack_pieces(pieces)
         tri = self._hints(np.concatenate([np.asarray(c) for c in contacts]) if want else None, len(P))
         P, tri, inserted, left, starts = self._settle(P, tri, check, tol, steps, max_iter, starts)
-        bounds = np.append(starts, len(P))
-        out = [P[bounds[i]:bounds[i + 1]] for i in range(len(pieces))]
+        out = np.split(P, starts[1:])
         if want:
-            return out, inserted, left, [tri[bounds[i]:bounds[i + 1]] for i in range(len(pieces))]
+            return out, inserted, left, np.split(tri, starts[1:])
         return out, inserted, left
 
     def _settle(self, P, tri, check, tol, steps, max_iter, track):
@@ -1421,8 +1418,7 @@ class BallCutter:
             new = P[seg] + t[:, None] * v
             new[:, 2] = z
             after = seg[keep]
-            P, check = _insert(P, after, new[keep])
-            track = track + np.searchsorted(after, track, side="left")  # inserts before each point
+            P, check, track = _insert(P, after, new[keep], track)
             tri = np.insert(tri, after + 1, zt[keep])
             d = np.diff(P, axis=0)
             check &= np.hypot(d[:, 0], d[:, 1]) > 1e-9
@@ -1481,8 +1477,7 @@ class BallCutter:
             s = np.flatnonzero(long_)
             mid = 0.5 * (P[s] + P[s + 1])
             mid[:, 2] = np.maximum(self.drop(mid[:, :2]), mid[:, 2])
-            P, check = _insert(P, s, mid)
-            track = track + np.searchsorted(s, track, side="left")
+            P, check, track = _insert(P, s, mid, track)
         log.warning("cutter.refine: %d moves still longer than L_safe after %d halvings",
                     int(long_.sum()), max_levels)
         return P, track
@@ -1536,8 +1531,9 @@ def _stack_pieces(pieces):
     return P, check, starts
 
 
-def _insert(P, after, newpts):
-    """Insert ``newpts`` after rows ``after`` (sorted); return the points and the moves to check.
+def _insert(P, after, newpts, track):
+    """Insert ``newpts`` after rows ``after`` (sorted); return the points, the moves to
+    check and ``track`` (row indices) moved past the rows inserted before them.
 
     The moves that touch an inserted point are flagged for checking; the others are
     already verified.
@@ -1554,7 +1550,8 @@ def _insert(P, after, newpts):
     chk = np.zeros(k + m - 1, dtype=bool)
     chk[newpos_ins - 1] = True
     chk[newpos_ins] = True
-    return Q, chk
+    # (a tracked index may be len(P): the start of an empty last piece)
+    return Q, chk, track + np.searchsorted(after, track, side="left")
 
 
 def _as_points(a, dim: int, name: str) -> np.ndarray:

@@ -1,8 +1,9 @@
 """Where the cutter stage's work goes in a real plan (issue 5: speed).
 
 Plans ``MESH`` with one pattern in-process, recording every call the pass builder makes to
-the ball cutter (``cl_from_cc``, ``settle``, ``refine``, batch by batch), then replays the
-recorded calls alone on one thread, twice, each against its recorded output (a mismatch
+the ball cutter (``cl_from_cc``, ``settle_pieces``, ``refine_pieces``, batch by batch; before
+session 29 it recorded only ``settle`` and ``refine``, which the pass builder no longer
+calls, so its settle and refine rows were empty), then replays the recorded calls alone on one thread, twice, each against its recorded output (a mismatch
 is an error: the replay must be the plan's own work). It prints:
 
 * per step, the core seconds (the lower of the two replays), the points in and the points
@@ -31,6 +32,7 @@ read as ``conformill plan FILE --scale S`` reads it (the 620k mesh of ``bench_sc
 from __future__ import annotations
 
 import argparse
+import copy
 import logging
 import sys
 import time
@@ -41,7 +43,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _common  # noqa: E402
 
-STEPS = ("cl_from_cc", "settle", "refine")
+#: the cutter's entry points the pass builder and the pencil stage call (the ``_pieces``
+#: forms batch the passes of one call; none of these calls another)
+STEPS = ("cl_from_cc", "settle_pieces", "refine_pieces", "settle", "refine")
 LIFT_EDGES = (0.0, 1e-3, 1e-2, 0.1, np.inf)
 
 
@@ -58,10 +62,10 @@ def record(mesh, job):
         f = originals[step]
 
         def g(self, *args, **kwargs):
-            a = tuple(np.array(x) if isinstance(x, np.ndarray) else x for x in args)
-            k = {n: (np.array(x) if isinstance(x, np.ndarray) else x) for n, x in kwargs.items()}
+            # copies: the caller goes on to change its lists of pieces (and the arrays in them)
+            a, k = copy.deepcopy(args), copy.deepcopy(kwargs)
             out = f(self, *args, **kwargs)
-            calls.append((step, a, k, out))
+            calls.append((step, a, k, copy.deepcopy(out)))
             return out
         return g
 
@@ -76,11 +80,16 @@ def record(mesh, job):
 
 
 def _same(a, b) -> bool:
-    if isinstance(a, tuple):
+    if isinstance(a, (tuple, list)):
         return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b))
     if isinstance(a, np.ndarray):
         return a.shape == np.shape(b) and np.array_equal(a, b)
     return a == b
+
+
+def _points(x) -> int:
+    """Points in an array ``(k, d)`` or in a list of them (the ``_pieces`` forms)."""
+    return len(x) if isinstance(x, np.ndarray) else sum(len(p) for p in x)
 
 
 def replay(cut, calls, rounds=None):
@@ -156,13 +165,13 @@ def main(argv=None) -> int:
     rounds = {}
     runs = [replay(cut, calls, rounds)] + [replay(cut, calls)]
     core = {s: min(r[s] for r in runs) for s in STEPS}
-    n_in = {s: sum(len(a[0]) for st, a, k, o in calls if st == s) for s in STEPS}
-    n_out = {s: sum(len(o if isinstance(o, np.ndarray) else o[0]) for st, a, k, o in calls if st == s)
+    n_in = {s: sum(_points(a[0]) for st, a, k, o in calls if st == s) for s in STEPS}
+    n_out = {s: sum(_points(o if s in ("refine", "refine_pieces") else o[0]) for st, a, k, o in calls if st == s)
              for s in STEPS}
     print(f"\nreplay on one thread (the lower of two runs): {sum(core.values()):.2f} core s")
-    print(f"  {'step':<11} {'core s':>7} {'points in':>10} {'added':>8} {'us per point out':>17}")
-    for s in STEPS:
-        print(f"  {s:<11} {core[s]:7.2f} {n_in[s]:10d} {n_out[s] - n_in[s]:8d} {1e6 * core[s] / max(n_out[s], 1):17.2f}")
+    print(f"  {'step':<13} {'core s':>7} {'points in':>10} {'added':>8} {'us per point out':>17}")
+    for s in (s for s in STEPS if any(c[0] == s for c in calls)):
+        print(f"  {s:<13} {core[s]:7.2f} {n_in[s]:10d} {n_out[s] - n_in[s]:8d} {1e6 * core[s] / max(n_out[s], 1):17.2f}")
     for step in ("settle", "refine"):
         rs = sorted(k[1] for k in rounds if k[0] == step)
         what = "moves tested" if step == "settle" else "moves checked / split"

@@ -65,7 +65,8 @@ def add_arguments(p) -> None:
                    help="the machine's rapid rate, mm/min, for deciding hops (5000)")
     p.add_argument("--max-step", type=float, default=10.0, metavar="L", help="longest forward step, mm (10)")
     p.add_argument("--threads", type=int, default=None, metavar="N",
-                   help="threads for parallel stages (default all; with 1 the cutter runs after the pattern stage)")
+                   help="threads for parallel stages (default all; with 1 the cutter runs after the pattern stage, "
+                        "and a first run compiles in this process only)")
     p.add_argument("-o", "--output", required=True, metavar="OUT.nc")
     p.add_argument("--report", default=None, metavar="OUT.json")
     p.add_argument("--plot", default=None, metavar="OUT.png")
@@ -93,11 +94,8 @@ def _corners(text):
 
 
 def run(args) -> int:
-    from conformill.mesh.io import read_mesh
-    from conformill.output.atomic import all_or_nothing, check_writable
-    from conformill.output.gcode import write_gcode
-    from conformill.output.report import write_json
-    from conformill.pipeline import Job, plan
+    from conformill.output.atomic import check_writable
+    from conformill.pipeline import Job
 
     check_writable(args.output, args.report, args.plot, args.html)
     if args.threads is not None:
@@ -123,6 +121,24 @@ def run(args) -> int:
     judge_h = job.scallop if args.verify_scallop is None else float(args.verify_scallop)
     if not (judge_h > 0 and judge_h < float("inf")):
         raise PlanningError(f"--verify-scallop must be a positive number, got {args.verify_scallop}")
+    from conformill import warm
+
+    # on a first run a second process compiles the later stages' kernels (not with --threads 1)
+    warm.start(("cutter", "verify") if args.verify else ("cutter",))
+    try:
+        return _run_job(args, job, judge_h)
+    finally:
+        warm.stop()
+
+
+def _run_job(args, job, judge_h: float) -> int:
+    """Read, plan, write and check: :func:`run` once the arguments are checked."""
+    from conformill.mesh.io import read_mesh
+    from conformill.output.atomic import all_or_nothing
+    from conformill.output.gcode import write_gcode
+    from conformill.output.report import write_json
+    from conformill.pipeline import plan
+
     t0 = time.perf_counter()
     t = time.perf_counter()
     mesh = read_mesh(args.mesh, scale=args.scale)

@@ -1,0 +1,175 @@
+"""The first run's compiling, shared with a second process.
+
+numba compiles each kernel the first time it is called and caches it on disk
+(``cache=True``); a fresh install's first ``conformill plan`` spends about 50 s doing so,
+on one core (numba compiles under one lock). The pipeline needs the cutter's kernels
+only once the pattern stage has started, and the verifier's at the very end. So when
+those kernels are not cached yet, :func:`start` runs ``python -m conformill.warm`` beside
+the plan: it calls the cutter and the verifier on a tiny part, in that order, which
+compiles and caches the same kernels (the same argument types: the public methods are
+called, as the pipeline calls them), while the plan compiles its first stages. The plan
+then loads them from the cache. The programs are the same bytes; only the cache is
+shared. Session 29, the quick start on a fresh cache: 32.7-38.7 s against 49.4-52.2 s
+(README, "Limits").
+"""
+
+from __future__ import annotations
+
+import atexit
+import os
+import subprocess
+import sys
+
+import numpy as np
+
+__all__ = ["start", "stop", "warm"]
+
+#: What the helper process compiles, in this order.
+PARTS = ("cutter", "verify")
+
+_proc: subprocess.Popen | None = None
+
+
+def _stand_in_cache(module: str, name: str):
+    """numba's ``FunctionCache`` for kernel ``name`` of ``module``, made as numba makes it
+    (same source file and first line, hence the same index file, stale when the file
+    changed) without importing the module: importing ``conformill.cutter`` compiles its
+    kernels that have explicit signatures, which is the helper's work."""
+    from importlib.util import find_spec
+
+    from numba.core.caching import FunctionCache
+
+    src = find_spec(module).origin
+    with open(src, encoding="utf-8") as f:
+        lines = f.read().splitlines()
+    at = next(i for i, t in enumerate(lines) if t.startswith(f"def {name}("))
+    while at > 0 and lines[at - 1].startswith("@"):  # the code starts at the first decorator
+        at -= 1
+
+    def stand_in():  # pragma: no cover - never called
+        pass
+
+    stand_in.__code__ = stand_in.__code__.replace(co_filename=src, co_firstlineno=at + 1)
+    stand_in.__qualname__ = stand_in.__name__ = name
+    return FunctionCache(stand_in)
+
+
+def _cached(module: str, name: str) -> bool:
+    """Whether numba's disk cache holds a current entry for kernel ``name`` of ``module``
+    (:func:`_stand_in_cache`). Unknown (numba's cache internals differ, no such kernel)
+    counts as cached: nothing is started then."""
+    try:
+        return len(_stand_in_cache(module, name)._cache_file._load_index()) > 0
+    except Exception:  # noqa: BLE001 - any surprise: do not warm
+        return True
+
+
+#: The kernels asked by :func:`needed` (the largest of each part), as (module, name).
+PROBES = {"cutter": (("conformill.cutter", "_worst_points"), ("conformill.cutter", "_highest_floats")),
+          "verify": (("conformill.verify.simulate", "_pairs_d2"), ("conformill.verify.simulate", "_cast"))}
+
+
+def needed(parts=PARTS) -> bool:
+    """Whether any of ``parts`` has a kernel numba has not cached yet (the largest of each
+    part are asked)."""
+    if os.environ.get("NUMBA_DISABLE_JIT", "0") not in ("", "0"):
+        return False
+    probes = [q for p in parts for q in PROBES.get(p, ())]
+    return not all(_cached(m, n) for m, n in probes)
+
+
+def start(parts=PARTS) -> bool:
+    """Start the helper process for ``parts`` if their kernels are not cached and numba may
+    use two or more threads here (at most one helper at a time); returns whether one runs.
+    It is stopped by :func:`stop` or when this process exits."""
+    global _proc
+    parts = tuple(p for p in parts if p in PARTS)
+    if _proc is not None or not parts:
+        return _proc is not None
+    import numba
+
+    if numba.get_num_threads() < 2 or not needed(parts):  # one core (or --threads 1): nothing to share
+        return False
+    env = dict(os.environ, NUMBA_NUM_THREADS="1")  # its calls are tiny: one core is the point
+    try:
+        _proc = subprocess.Popen([sys.executable, "-m", "conformill.warm", *parts], env=env,
+                                 stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    except OSError:
+        _proc = None
+        return False
+    atexit.register(stop)
+    return True
+
+
+def stop() -> None:
+    """Stop the helper process if it still runs (what it cached so far stays cached)."""
+    global _proc
+    p, _proc = _proc, None
+    if p is not None and p.poll() is None:
+        p.terminate()
+        try:
+            p.wait(timeout=10)
+        except subprocess.TimeoutExpired:  # pragma: no cover - a stuck helper
+            p.kill()
+            p.wait()
+
+
+def _tiny_part():
+    """A dome of about 60 triangles (mm), its top at about z = 0."""
+    from conformill.mesh.synthetic import sphere_cap
+
+    m = sphere_cap(R=50.0, radius_xy=12.0, spacing=3.0)
+    V = m.V.copy()
+    V[:, 2] -= V[:, 2].max()
+    return m.__class__(V=V, F=m.F, name="warm")
+
+
+def _cutter(mesh, r: float):
+    """The pass builder's calls (:mod:`conformill.passes`) on a line over the dome;
+    returns the centres of one settled, refined pass."""
+    from conformill.cutter import BallCutter
+
+    cut = BallCutter(mesh.V, mesh.F, r)
+    x = np.linspace(-6.0, 6.0, 25)
+    z = np.sqrt(50.0**2 - x * x)
+    cc = np.column_stack([x, np.zeros_like(x), z - z.max()])
+    nn = np.column_stack([x, np.zeros_like(x), z]) / 50.0
+    centres, lift, tri = cut.cl_from_cc(cc, nn, contacts=True)
+    pcs, _, _, _ = cut.settle_pieces([centres], 0.005, contacts=[tri])
+    pcs = cut.refine_pieces(pcs, 0.01)
+    cut.clear_height(centres[:-1, :2], centres[1:, :2], 1.0)
+    return pcs[0], cut
+
+
+def _verify(mesh, centres, r: float) -> None:
+    """``conformill plan --verify``'s check of a short program along ``centres``."""
+    import tempfile
+    from pathlib import Path
+
+    from conformill.verify.gcode import read_gcode
+    from conformill.verify.simulate import verify
+
+    tip = centres - np.array([0.0, 0.0, r])
+    top = float(mesh.V[:, 2].max()) + 10.0
+    lines = ["G21 G90 G17", f"G0 Z{top:.4f}", f"G0 X{tip[0, 0]:.4f} Y{tip[0, 1]:.4f}", "M3 S10000",
+             f"G1 Z{tip[0, 2]:.4f} F300"]
+    lines += [f"G1 X{p[0]:.4f} Y{p[1]:.4f} Z{p[2]:.4f} F1000" for p in tip[1:]]
+    lines += [f"G0 Z{top:.4f}", "M5", "M2"]
+    with tempfile.TemporaryDirectory() as d:
+        f = Path(d) / "warm.nc"
+        f.write_text("\n".join(lines) + "\n")
+        program = read_gcode(f)
+    verify(mesh, program, r, n_samples=2000, scallop=0.0105, gouge=0.01, judge="reachable")
+
+
+def warm(parts=PARTS) -> None:
+    """Compile (or load) the kernels of ``parts`` by calling them on a tiny part."""
+    r = 4.0
+    mesh = _tiny_part()
+    centres, _ = _cutter(mesh, r)
+    if "verify" in parts:
+        _verify(mesh, centres, r)
+
+
+if __name__ == "__main__":  # pragma: no cover - run as the helper process
+    warm(tuple(sys.argv[1:]) or PARTS)

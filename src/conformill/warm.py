@@ -9,8 +9,8 @@ the plan: it calls the cutter and the verifier on a tiny part, in that order, wh
 compiles and caches the same kernels (the same argument types: the public methods are
 called, as the pipeline calls them), while the plan compiles its first stages. The plan
 then loads them from the cache. The programs are the same bytes; only the cache is
-shared. Session 29, the quick start on a fresh cache: 32.7-38.7 s against 49.4-52.2 s
-(README, "Limits").
+shared. Session 29, the quick start on an empty cache: 34.5 s wall against 50.0 s with
+``--threads 1``, which starts no helper (README, "Limits").
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ import sys
 
 import numpy as np
 
-__all__ = ["start", "stop", "warm"]
+__all__ = ["needed", "start", "stop", "warm"]
 
 #: What the helper process compiles, in this order.
 PARTS = ("cutter", "verify")

@@ -3,8 +3,9 @@
 Plans ``MESH`` with one pattern in-process, recording every call the pass builder makes to
 the ball cutter (``cl_from_cc``, ``settle_pieces``, ``refine_pieces``, batch by batch; before
 session 29 it recorded only ``settle`` and ``refine``, which the pass builder no longer
-calls, so its settle and refine rows were empty), then replays the recorded calls alone on one thread, twice, each against its recorded output (a mismatch
-is an error: the replay must be the plan's own work). It prints:
+calls, so its settle and refine rows were empty), then replays the recorded calls alone on
+one thread, twice, each against its recorded output (a mismatch is an error: the replay
+must be the plan's own work). It prints:
 
 * per step, the core seconds (the lower of the two replays), the points in and the points
   it adds, and the time per output point;

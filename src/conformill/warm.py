@@ -28,6 +28,7 @@ __all__ = ["needed", "start", "stop", "warm"]
 PARTS = ("cutter", "verify")
 
 _proc: subprocess.Popen | None = None
+_at_exit = False  # stop() registered with atexit
 
 
 def _stand_in_cache(module: str, name: str):
@@ -82,7 +83,7 @@ def start(parts=PARTS) -> bool:
     """Start the helper process for ``parts`` if their kernels are not cached and numba may
     use two or more threads here (at most one helper at a time); returns whether one runs.
     It is stopped by :func:`stop` or when this process exits."""
-    global _proc
+    global _proc, _at_exit
     parts = tuple(p for p in parts if p in PARTS)
     if _proc is not None or not parts:
         return _proc is not None
@@ -97,7 +98,9 @@ def start(parts=PARTS) -> bool:
     except OSError:
         _proc = None
         return False
-    atexit.register(stop)
+    if not _at_exit:
+        atexit.register(stop)
+        _at_exit = True
     return True
 
 
@@ -117,14 +120,15 @@ def stop() -> None:
 def _tiny_part():
     """A dome of about 60 triangles (mm), its top at about z = 0."""
     from conformill.mesh.synthetic import sphere_cap
+    from conformill.types import Mesh
 
     m = sphere_cap(R=50.0, radius_xy=12.0, spacing=3.0)
     V = m.V.copy()
     V[:, 2] -= V[:, 2].max()
-    return m.__class__(V=V, F=m.F, name="warm")
+    return Mesh(V=V, F=m.F, name="warm")
 
 
-def _cutter(mesh, r: float):
+def _cutter(mesh, r: float) -> np.ndarray:
     """The pass builder's calls (:mod:`conformill.passes`) on a line over the dome;
     returns the centres of one settled, refined pass."""
     from conformill.cutter import BallCutter
@@ -138,7 +142,7 @@ def _cutter(mesh, r: float):
     pcs, _, _, _ = cut.settle_pieces([centres], 0.005, contacts=[tri])
     pcs = cut.refine_pieces(pcs, 0.01)
     cut.clear_height(centres[:-1, :2], centres[1:, :2], 1.0)
-    return pcs[0], cut
+    return pcs[0]
 
 
 def _verify(mesh, centres, r: float) -> None:
@@ -166,7 +170,7 @@ def warm(parts=PARTS) -> None:
     """Compile (or load) the kernels of ``parts`` by calling them on a tiny part."""
     r = 4.0
     mesh = _tiny_part()
-    centres, _ = _cutter(mesh, r)
+    centres = _cutter(mesh, r)
     if "verify" in parts:
         _verify(mesh, centres, r)
 

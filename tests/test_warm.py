@@ -99,3 +99,43 @@ def test_helper_caches_what_the_plan_loads(tmp_path):
     late = [k for k in got["compiled"] if k.startswith(("conformill.cutter.", "conformill.verify.simulate."))]
     assert late == [], f"compiled again in the plan: {late}"
     assert any(k.startswith("conformill.") for k in got["compiled"])  # the listener works: earlier stages compiled
+
+
+def _dome_files(tmp_path):
+    """The helper's dome as a PLY and a short program over it (G-code)."""
+    import trimesh
+
+    mesh = warm._tiny_part()
+    part = tmp_path / "dome.ply"
+    trimesh.Trimesh(mesh.V, mesh.F, process=False).export(part)
+    x = np.linspace(-6.0, 6.0, 13)
+    z = np.sqrt(50.0**2 - x * x) - 50.0  # the tool tip on the dome (its top at z = 0), near enough
+    prog = tmp_path / "line.nc"
+    prog.write_text("G21 G90 G17\nG0 Z20\nG0 X-6 Y0\nG1 Z1 F300\n"
+                    + "".join(f"G1 X{a:.3f} Y0 Z{b:.3f} F1000\n" for a, b in zip(x, z)) + "G0 Z20\nM2\n")
+    return part, prog
+
+
+@pytest.mark.parametrize("extra,parts", [([], ("cutter",)), (["--verify", "--verify-samples", "500"],
+                                                           ("cutter", "verify"))])
+def test_plan_asks_for_the_parts_it_uses(monkeypatch, tmp_path, extra, parts):
+    from conformill.cli.main import main
+
+    asked = []
+    monkeypatch.setattr(warm, "start", lambda p=warm.PARTS: asked.append(tuple(p)) or False)
+    part, _ = _dome_files(tmp_path)
+    rc = main(["plan", str(part), "--tool-radius", "4", "--scallop", "0.2", "-o", str(tmp_path / "p.nc"), "-q",
+               *extra])
+    assert rc in (0, 1) and asked == [parts]
+
+
+@pytest.mark.parametrize("extra,parts", [([], []), (["--judge", "reachable"], [("cutter",)]),
+                                         (["--rest", "--scallop", "0.1"], [("cutter",)])])
+def test_verify_asks_for_the_cutter_when_it_drops_the_ball(monkeypatch, tmp_path, extra, parts):
+    from conformill.cli.main import main
+
+    asked = []
+    monkeypatch.setattr(warm, "start", lambda p=warm.PARTS: asked.append(tuple(p)) or False)
+    part, prog = _dome_files(tmp_path)
+    rc = main(["verify", str(part), str(prog), "--tool-radius", "4", "--samples", "500", "-q", *extra])
+    assert rc in (0, 1) and asked == parts

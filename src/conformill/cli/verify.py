@@ -131,7 +131,18 @@ def run(args) -> int:
     check_writable(args.report, args.plot)
     if args.program != "-" and (not Path(args.program).exists() or Path(args.program).is_dir()):
         raise ConformillError(f"G-code file {args.program} does not exist (or is a folder)")
+    from conformill import warm
 
+    if args.judge == "reachable" or args.rest:  # their search drops the ball: on a first run a
+        warm.start(("cutter",))  # second process compiles the cutter's kernels (conformill.warm)
+    try:
+        return _check(args)
+    finally:
+        warm.stop()
+
+
+def _check(args) -> int:
+    """Read, simulate, report: :func:`run` once the arguments are checked."""
     from conformill.mesh.io import read_mesh
     from conformill.verify.gcode import read_gcode
     from conformill.verify.simulate import verify

@@ -70,7 +70,7 @@ class Listen(event.Listener):
 event.register("numba:compile", Listen())
 from conformill.cli.main import main
 
-rc = main(["plan", sys.argv[1], "--pattern", "zigzag", "--tool-radius", "4", "--scallop", "0.05", "-o", sys.argv[2],
+rc = main(["plan", sys.argv[1], "--pattern", "contour", "--tool-radius", "4", "--scallop", "0.05", "-o", sys.argv[2],
            "-q", "--verify", "--verify-samples", "3000", "--threads", "1"])
 print(json.dumps({"rc": rc, "compiled": compiled}))
 """
@@ -82,37 +82,36 @@ def test_helper_caches_what_the_plan_loads(tmp_path):
     for ``conformill plan --verify`` to compile: same kernels, same argument types."""
     import trimesh
 
-    from conformill.mesh.synthetic import sphere_cap
+    from conformill.mesh.synthetic import v_groove
 
-    m = sphere_cap(R=60.0, radius_xy=20.0, spacing=2.5)
-    part = tmp_path / "dome.ply"
+    # a groove: the moves across its crease float above the drop surface, so the plan's
+    # settle runs its tangent search too (a dome alone never calls it)
+    m = v_groove(a_deg=20.0, half=15.0, step=0.5)
+    part = tmp_path / "groove.ply"
     trimesh.Trimesh(m.V - np.array([0.0, 0.0, m.V[:, 2].max()]), m.F, process=False).export(part)
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
     env.pop("NUMBA_DISABLE_JIT", None)
     subprocess.run([sys.executable, "-m", "conformill.warm", "cutter", "verify"], env=env, check=True,
                    capture_output=True, timeout=600)
-    run = subprocess.run([sys.executable, "-c", _PLAN, str(part), str(tmp_path / "dome.nc")], env=env,
+    run = subprocess.run([sys.executable, "-c", _PLAN, str(part), str(tmp_path / "groove.nc")], env=env,
                          capture_output=True, text=True, timeout=600)
     assert run.returncode == 0, run.stderr[-2000:]
     got = json.loads(run.stdout.strip().splitlines()[-1])
-    assert got["rc"] in (0, 1)  # a tiny dome may fail the scallop check; the program is written
+    assert got["rc"] in (0, 1)  # a small part may fail the scallop check; the program is written
     late = [k for k in got["compiled"] if k.startswith(("conformill.cutter.", "conformill.verify.simulate."))]
     assert late == [], f"compiled again in the plan: {late}"
     assert any(k.startswith("conformill.") for k in got["compiled"])  # the listener works: earlier stages compiled
 
 
-def _dome_files(tmp_path):
-    """The helper's dome as a PLY and a short program over it (G-code)."""
+def _part_files(tmp_path):
+    """The helper's groove as a PLY and a short program along its crease (G-code)."""
     import trimesh
 
     mesh = warm._tiny_part()
-    part = tmp_path / "dome.ply"
+    part = tmp_path / "groove.ply"
     trimesh.Trimesh(mesh.V, mesh.F, process=False).export(part)
-    x = np.linspace(-6.0, 6.0, 13)
-    z = np.sqrt(50.0**2 - x * x) - 50.0  # the tool tip on the dome (its top at z = 0), near enough
     prog = tmp_path / "line.nc"
-    prog.write_text("G21 G90 G17\nG0 Z20\nG0 X-6 Y0\nG1 Z1 F300\n"
-                    + "".join(f"G1 X{a:.3f} Y0 Z{b:.3f} F1000\n" for a, b in zip(x, z)) + "G0 Z20\nM2\n")
+    prog.write_text("G21 G90 G17\nG0 Z20\nG0 X0 Y-5\nG1 Z1 F300\nG1 Z0.5\nG1 Y5 F1000\nG0 Z20\nM2\n")
     return part, prog
 
 
@@ -123,7 +122,7 @@ def test_plan_asks_for_the_parts_it_uses(monkeypatch, tmp_path, extra, parts):
 
     asked = []
     monkeypatch.setattr(warm, "start", lambda p=warm.PARTS: asked.append(tuple(p)) or False)
-    part, _ = _dome_files(tmp_path)
+    part, _ = _part_files(tmp_path)
     rc = main(["plan", str(part), "--tool-radius", "4", "--scallop", "0.2", "-o", str(tmp_path / "p.nc"), "-q",
                *extra])
     assert rc in (0, 1) and asked == [parts]
@@ -136,6 +135,6 @@ def test_verify_asks_for_the_cutter_when_it_drops_the_ball(monkeypatch, tmp_path
 
     asked = []
     monkeypatch.setattr(warm, "start", lambda p=warm.PARTS: asked.append(tuple(p)) or False)
-    part, prog = _dome_files(tmp_path)
+    part, prog = _part_files(tmp_path)
     rc = main(["verify", str(part), str(prog), "--tool-radius", "4", "--samples", "500", "-q", *extra])
     assert rc in (0, 1) and asked == parts

@@ -5,12 +5,12 @@ numba compiles each kernel the first time it is called and caches it on disk
 on one core (numba compiles under one lock). The pipeline needs the cutter's kernels
 only once the pattern stage has started, and the verifier's at the very end. So when
 those kernels are not cached yet, :func:`start` runs ``python -m conformill.warm`` beside
-the plan: it calls the cutter and the verifier on a tiny part, in that order, which
+the plan: it calls the cutter and the verifier on a small groove, in that order, which
 compiles and caches the same kernels (the same argument types: the public methods are
 called, as the pipeline calls them), while the plan compiles its first stages. The plan
 then loads them from the cache. The programs are the same bytes; only the cache is
-shared. Session 29, the quick start on an empty cache: 34.5 s wall against 50.0 s with
-``--threads 1``, which starts no helper (README, "Limits").
+shared. Session 29, the quick start on an empty cache: 30.2-30.6 s wall against 50.0 s
+with ``--threads 1``, which starts no helper (README, "Limits").
 """
 
 from __future__ import annotations
@@ -118,26 +118,24 @@ def stop() -> None:
 
 
 def _tiny_part():
-    """A dome of about 60 triangles (mm), its top at about z = 0."""
-    from conformill.mesh.synthetic import sphere_cap
-    from conformill.types import Mesh
+    """A V-groove of 576 triangles (mm, walls at 20 deg): the moves across its crease float
+    above the drop surface, so the settle's tangent search runs too (a dome alone never
+    calls it; ``tests/test_warm.py`` caught that)."""
+    from conformill.mesh.synthetic import v_groove
 
-    m = sphere_cap(R=50.0, radius_xy=12.0, spacing=3.0)
-    V = m.V.copy()
-    V[:, 2] -= V[:, 2].max()
-    return Mesh(V=V, F=m.F, name="warm")
+    return v_groove(a_deg=20.0, half=6.0, step=0.5)
 
 
 def _cutter(mesh, r: float) -> np.ndarray:
-    """The pass builder's calls (:mod:`conformill.passes`) on a line over the dome;
+    """The pass builder's calls (:mod:`conformill.passes`) on a line across the groove;
     returns the centres of one settled, refined pass."""
     from conformill.cutter import BallCutter
 
     cut = BallCutter(mesh.V, mesh.F, r)
-    x = np.linspace(-6.0, 6.0, 25)
-    z = np.sqrt(50.0**2 - x * x)
-    cc = np.column_stack([x, np.zeros_like(x), z - z.max()])
-    nn = np.column_stack([x, np.zeros_like(x), z]) / 50.0
+    x = np.linspace(-5.0, 5.0, 21)
+    slope = np.tan(np.radians(20.0))
+    cc = np.column_stack([x, np.zeros_like(x), np.abs(x) * slope])
+    nn = np.column_stack([-np.sign(x) * slope, np.zeros_like(x), np.ones_like(x)])
     centres, lift, tri = cut.cl_from_cc(cc, nn, contacts=True)
     pcs, _, _, _ = cut.settle_pieces([centres], 0.005, contacts=[tri])
     pcs = cut.refine_pieces(pcs, 0.01)

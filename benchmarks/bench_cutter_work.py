@@ -44,8 +44,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _common  # noqa: E402
 
-#: the cutter's entry points the pass builder and the pencil stage call (the ``_pieces``
-#: forms batch the passes of one call; none of these calls another)
+#: the cutter's public entry points (the pass builder calls the first three, the pencil's
+#: links ``refine``; the ``_pieces`` forms batch the passes of one call; none of these
+#: calls another)
 STEPS = ("cl_from_cc", "settle_pieces", "refine_pieces", "settle", "refine")
 LIFT_EDGES = (0.0, 1e-3, 1e-2, 0.1, np.inf)
 

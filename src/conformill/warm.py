@@ -19,13 +19,17 @@ import atexit
 import os
 import subprocess
 import sys
+from contextlib import contextmanager
 
 import numpy as np
 
-__all__ = ["needed", "start", "stop", "warm"]
+__all__ = ["beside", "needed", "start", "stop", "warm"]
 
 #: What the helper process compiles, in this order.
 PARTS = ("cutter", "verify")
+
+#: The helper's part: a V-groove with walls at this slope (deg).
+_WALL_DEG = 20.0
 
 _proc: subprocess.Popen | None = None
 _at_exit = False  # stop() registered with atexit
@@ -104,6 +108,17 @@ def start(parts=PARTS) -> bool:
     return True
 
 
+@contextmanager
+def beside(parts=PARTS):
+    """:func:`start` the helper for ``parts`` (none: nothing), :func:`stop` it on leaving."""
+    if parts:
+        start(parts)
+    try:
+        yield
+    finally:
+        stop()
+
+
 def stop() -> None:
     """Stop the helper process if it still runs (what it cached so far stays cached)."""
     global _proc
@@ -123,7 +138,7 @@ def _tiny_part():
     calls it; ``tests/test_warm.py`` caught that)."""
     from conformill.mesh.synthetic import v_groove
 
-    return v_groove(a_deg=20.0, half=6.0, step=0.5)
+    return v_groove(a_deg=_WALL_DEG, half=6.0, step=0.5)
 
 
 def _cutter(mesh, r: float) -> np.ndarray:
@@ -133,7 +148,7 @@ def _cutter(mesh, r: float) -> np.ndarray:
 
     cut = BallCutter(mesh.V, mesh.F, r)
     x = np.linspace(-5.0, 5.0, 21)
-    slope = np.tan(np.radians(20.0))
+    slope = np.tan(np.radians(_WALL_DEG))
     cc = np.column_stack([x, np.zeros_like(x), np.abs(x) * slope])
     nn = np.column_stack([-np.sign(x) * slope, np.zeros_like(x), np.ones_like(x)])
     centres, lift, tri = cut.cl_from_cc(cc, nn, contacts=True)
@@ -151,6 +166,7 @@ def _verify(mesh, centres, r: float) -> None:
     from conformill.verify.gcode import read_gcode
     from conformill.verify.simulate import verify
 
+    # written here, not by conformill.output.gcode: its kernels would delay the verifier's
     tip = centres - np.array([0.0, 0.0, r])
     top = float(mesh.V[:, 2].max()) + 10.0
     lines = ["G21 G90 G17", f"G0 Z{top:.4f}", f"G0 X{tip[0, 0]:.4f} Y{tip[0, 1]:.4f}", "M3 S10000",

@@ -124,11 +124,8 @@ def run(args) -> int:
     from conformill import warm
 
     # on a first run a second process compiles the later stages' kernels (not with --threads 1)
-    warm.start(("cutter", "verify") if args.verify else ("cutter",))
-    try:
+    with warm.beside(("cutter", "verify") if args.verify else ("cutter",)):
         return _run_job(args, job, judge_h)
-    finally:
-        warm.stop()
 
 
 def _run_job(args, job, judge_h: float) -> int:

@@ -133,12 +133,9 @@ def run(args) -> int:
         raise ConformillError(f"G-code file {args.program} does not exist (or is a folder)")
     from conformill import warm
 
-    if args.judge == "reachable" or args.rest:  # their search drops the ball: on a first run a
-        warm.start(("cutter",))  # second process compiles the cutter's kernels (conformill.warm)
-    try:
+    # their search drops the ball: on a first run a second process compiles the cutter's kernels
+    with warm.beside(("cutter",) if args.judge == "reachable" or args.rest else ()):
         return _check(args)
-    finally:
-        warm.stop()
 
 
 def _check(args) -> int:

@@ -42,7 +42,7 @@ def test_pass_report_and_plot(files, tmp_path, capsys):
     assert set(r["scallop"]) == {"p50", "p99", "p999", "max"}
     assert r["scallop"]["max"] == pytest.approx(3 - np.sqrt(9 - 0.25), abs=2e-4)
     assert r["pass"] is True and r["tool_radius"] == 3 and r["samples"] == 20000
-    assert r["thresholds"] == {"scallop": 0.05, "gouge": 0.01}
+    assert r["thresholds"] == {"scallop": 0.05, "gouge": 0.01, "reach_depth": 0.05}  # the depth defaults to H
     assert r["uncut_fraction"] == 0 and r["gouge_max"] < 1e-6
     assert r["rapid_min_clearance"] > 0.5
     assert png.stat().st_size > 10_000 and png.read_bytes()[:4] == b"\x89PNG"
@@ -95,3 +95,45 @@ def test_bad_input_exit_2(files, tmp_path, capsys):
     capsys.readouterr()
     assert main(["verify", str(mesh), str(nc), "-r", "3", "--rest"]) == 2
     assert "--rest needs --scallop" in capsys.readouterr().err
+    for bad_depth in ("0", "-0.01", "nan"):
+        assert main(["verify", str(mesh), str(nc), "-r", "3", "--reach-depth", bad_depth]) == 2
+        assert "--reach-depth must be > 0" in capsys.readouterr().err
+
+
+def test_reach_depth_is_the_functions_and_a_deeper_one_excuses_less(tmp_path, capsys):
+    # A 12-degree V-groove, tighter than a ball of r = 2 at its crease: samples near the
+    # crease are unreachable. `--reach-depth` is verify()'s reach_depth (the raster and
+    # trade-off benchmarks judge 1.05 H with a depth of H; without it the depth is the
+    # limit), and a deeper one can only mark fewer samples unreachable: the tangent ball
+    # is allowed to cut deeper into the other wall, and the search behind it has the same
+    # limit.
+    import trimesh
+
+    from conformill.mesh.synthetic import v_groove
+    from conformill.verify.gcode import read_gcode
+    from conformill.verify.simulate import verify
+    from test_verify_reach import _raster
+
+    m, r, H = v_groove(a_deg=12.0, step=0.5), 2.0, 0.02
+    mesh = tmp_path / "groove.ply"
+    trimesh.Trimesh(m.V, m.F, process=False).export(mesh)
+    nc = tmp_path / "raster.nc"
+    nc.write_text(_raster(m, r, half=9.5))
+    args = ["verify", str(mesh), str(nc), "-r", str(r), "--scallop", str(1.5 * H), "--judge", "reachable",
+            "--samples", "20000", "-q"]
+    reports = {}
+    for depth in (None, H, 0.25 * H):
+        rep = tmp_path / f"r{depth}.json"
+        main(args + ([] if depth is None else ["--reach-depth", str(depth)]) + ["--report", str(rep)])
+        reports[depth] = json.loads(rep.read_text())
+    assert reports[None]["thresholds"]["reach_depth"] == 1.5 * H
+    assert reports[H]["thresholds"]["reach_depth"] == H
+    ref = verify(m, read_gcode(nc), r, n_samples=20000, scallop=1.5 * H, reach_depth=H, judge="reachable").summary
+    # (the report keeps 6 significant digits)
+    assert reports[H]["reachable"]["unreachable_fraction"] == pytest.approx(ref["reachable"]["unreachable_fraction"],
+                                                                             rel=1e-5)
+    assert reports[H]["reachable"]["scallop"] == pytest.approx(ref["reachable"]["scallop"], rel=1e-5)
+    frac = [reports[d]["reachable"]["unreachable_fraction"] for d in (None, H, 0.25 * H)]
+    assert 0 < frac[0] <= frac[1] <= frac[2]
+    assert frac[0] < frac[2]  # the depth does matter here
+    capsys.readouterr()

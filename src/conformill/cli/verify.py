@@ -36,6 +36,11 @@ def add_arguments(parser) -> None:
                         help="check the scallop limit on all interior samples (default) or only where a "
                              "3-axis ball can reach (undercuts, pockets tighter than the ball and creases "
                              "where no ball position comes within H excluded)")
+    parser.add_argument("--reach-depth", type=float, default=None, metavar="D",
+                        help="with --judge reachable or --rest: material depth, mm, beyond which a sample the "
+                             "ball touching it along its normal cannot clear (undercut, pocket tighter than the "
+                             "ball) counts as unreachable (default: the scallop limit H, without --scallop "
+                             "0.01 R; the raster and trade-off benchmarks judge 1.05 H with a depth of H)")
     parser.add_argument("--rest", action="store_true",
                         help="with --scallop: search the ball positions at every reachable sample left above H "
                              "and report the program's own share above the least material any ball leaves; "
@@ -86,7 +91,8 @@ def table(summary: dict) -> str:
     out += [f"{r[0]:<{w0}}{r[1]:>30}{r[2]:>20}{r[3]:>16}" for r in rows]
     t = q["tangent_test"]
     out.append(f"unreachable by a 3-axis ball (undercut, tighter than the ball, or beyond any ball position): "
-               f"{100 * q['unreachable_fraction']:.3g} % of the interior; limits judged on: {summary['judged_on']}")
+               f"{100 * q['unreachable_fraction']:.3g} % of the interior (reach depth "
+               f"{_fmt(summary['thresholds'].get('reach_depth'))}); limits judged on: {summary['judged_on']}")
     if not q.get("searched", True):
         out.append("  (crease material no ball position removes is left out only with --judge reachable or --rest)")
     else:
@@ -122,6 +128,7 @@ def run(args) -> int:
     _positive("--tool-radius", args.tool_radius)
     _positive("--scallop", args.scallop, allow_zero=True)
     _positive("--gouge", args.gouge, allow_zero=True)
+    _positive("--reach-depth", args.reach_depth)
     _positive("--scale", args.scale)
     _positive("--chord-tol", args.chord_tol)
     if args.samples < 1:
@@ -151,7 +158,7 @@ def _check(args) -> int:
     with sample_bar(args.samples, "simulating", enabled=not quiet) as update:
         res = verify(mesh, program, args.tool_radius, n_samples=args.samples, seed=args.seed,
                      scallop=args.scallop, gouge=args.gouge, normals=args.normals, judge=args.judge,
-                     progress=update, rest=args.rest)
+                     progress=update, rest=args.rest, reach_depth=args.reach_depth)
     seconds = time.perf_counter() - t0
     summary = dict(res.summary)
     summary.update(mesh=mesh.name, program=program.source, faces=mesh.n_faces, scale=args.scale, seconds=seconds)

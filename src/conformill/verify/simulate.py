@@ -1086,7 +1086,7 @@ def verify(mesh, program: Program, tool_radius: float, n_samples: int = 200_000,
         "retract_min_clearance": rap["retract_min_clearance"],
         "n_rapids": rap["n_rapids"],
         "n_retracts": rap["n_retracts"],
-        "thresholds": {"scallop": scallop, "gouge": gouge},
+        "thresholds": {"scallop": scallop, "gouge": gouge, "reach_depth": depth},
     }
     fails = []
     sj = s_reach if judge == "reachable" else s_int

@@ -37,10 +37,11 @@ def add_arguments(parser) -> None:
                              "3-axis ball can reach (undercuts, pockets tighter than the ball and creases "
                              "where no ball position comes within H excluded)")
     parser.add_argument("--reach-depth", type=float, default=None, metavar="D",
-                        help="with --judge reachable or --rest: material depth, mm, beyond which a sample the "
-                             "ball touching it along its normal cannot clear (undercut, pocket tighter than the "
-                             "ball) counts as unreachable (default: the scallop limit H, without --scallop "
-                             "0.01 R; the raster and trade-off benchmarks judge 1.05 H with a depth of H)")
+                        help="material depth, mm, that makes a sample unreachable: the ball touching it along "
+                             "its normal, or its shank, would run deeper than D into the part (undercut, pocket "
+                             "tighter than the ball). It shapes the 'reachable interior' column and what "
+                             "--judge reachable judges (default: H; without --scallop 0.01 R). The raster and "
+                             "trade-off benchmarks judge 1.05 H with a depth of H: --scallop 1.05H --reach-depth H")
     parser.add_argument("--rest", action="store_true",
                         help="with --scallop: search the ball positions at every reachable sample left above H "
                              "and report the program's own share above the least material any ball leaves; "

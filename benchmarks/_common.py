@@ -268,13 +268,19 @@ def verify_samples(mesh, n: int, r: float):
 def program_of(res):
     """The program of plan result ``res`` as ``conformill verify`` reads it: written as G-code
     (feed 1000, plunge 1000 / 3) and read back."""
+    return written(res.toolpath)[0]
+
+
+def written(toolpath):
+    """``(Program, write_gcode's statistics)`` of ``toolpath`` written as :func:`program_of`
+    writes it and read back."""
     from conformill.output.gcode import write_gcode
     from conformill.verify.gcode import read_gcode
 
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "p.nc"
-        write_gcode(path, res.toolpath, feed=1000.0, plunge_feed=1000.0 / 3)
-        return read_gcode(path)
+        stats = write_gcode(path, toolpath, feed=1000.0, plunge_feed=1000.0 / 3)
+        return read_gcode(path), stats
 
 
 def verify_program(mesh, prog, samples, h: float, r: float, e: float):

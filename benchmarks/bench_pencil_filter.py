@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import math
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -44,17 +43,6 @@ import bench_raster as BR  # noqa: E402
 
 #: Where between the two contacts of a fold point the pattern's rest is read.
 SHADOW_AT = (0.25, 0.5, 0.75)
-
-
-def _written(toolpath):
-    """``(Program, write_gcode statistics)`` of a tool path written as ``plan`` writes it."""
-    from conformill.output.gcode import write_gcode
-    from conformill.verify.gcode import read_gcode
-
-    with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / "p.nc"
-        stats = write_gcode(path, toolpath, feed=1000.0, plunge_feed=1000.0 / 3)
-        return read_gcode(path), stats
 
 
 def _tops(cutter, XY):
@@ -109,15 +97,16 @@ def main(argv=None) -> int:
     job = Job(pattern=args.pattern, tool_radius=r, scallop=h, tolerance=e, hop_lift=args.hop)
     res = plan(mesh, job)
     tp0 = res.toolpath
-    prog0, st0 = _written(tp0)
+    prog0, st0 = _common.written(tp0)
     m = res.mesh
     cut = BallCutter(m.V, m.F, r)
     spacing = 1.0 / math.sqrt(D)
     fp, _ = pencil.fold_centres(cut, spacing, h)
     keep = fp.shadow > 0.15 * h
     C, qa, qb = fp.centres[keep], fp.contact_a[keep], fp.contact_b[keep]
-    area = float(pencil._face_areas(m.V, m.F).sum())
-    P, N, faces = pencil.surface_samples(m.V, m.F, min(D, pencil._MAX_SAMPLES / area), 0, below_nz=pencil._STEEP_NZ)
+    areas = pencil._face_areas(m.V, m.F)
+    P, N, faces = pencil.surface_samples(m.V, m.F, min(D, pencil._MAX_SAMPLES / float(areas.sum())), 0, areas=areas,
+                                         below_nz=pencil._STEEP_NZ)
     Cs, rest_s, state = pencil.best_centres(cut, P, N, faces, low=0.15 * h, give_up=max(pencil._GIVE_UP, 1.0) * h)
     useful = (state == 1) & (rest_s > 0.15 * h) & (rest_s <= h) & np.isfinite(Cs[:, 2])
     steep, Ps, Ns = Cs[useful], P[useful], N[useful]
@@ -127,12 +116,14 @@ def main(argv=None) -> int:
 
     # the pattern's rest: at each fold point's shadow points (towards the wedged centre) and at
     # each steep centre's sample (along its normal), in one cast
+    k = len(C)
+    M = np.vstack([qa + f * (qb - qa) for f in SHADOW_AT])
+    z = _tops(cut, M)
     pts, nrm, ok = [], [], []
-    for f in SHADOW_AT:
-        M = qa + f * (qb - qa)
-        z = _tops(cut, M)
-        good = np.isfinite(z)
-        Q = np.column_stack([M[:, :2], np.where(good, z, M[:, 2])])
+    for i in range(len(SHADOW_AT)):
+        zi, Mi = z[i * k:(i + 1) * k], M[i * k:(i + 1) * k]
+        good = np.isfinite(zi)
+        Q = np.column_stack([Mi[:, :2], np.where(good, zi, Mi[:, 2])])
         d = C - Q
         pts.append(Q)
         nrm.append(d / np.linalg.norm(d, axis=1, keepdims=True))
@@ -143,7 +134,6 @@ def main(argv=None) -> int:
     t0 = time.perf_counter()
     rest = remaining_material(SurfaceSamples.from_arrays(Q + 1e-6 * Nq, Nq), prog0, r)[0]
     t_cast = time.perf_counter() - t0
-    k = len(C)
     fold_rest = np.zeros(k)
     for i, good in enumerate(ok):
         fold_rest = np.maximum(fold_rest, np.where(good, rest[i * k:(i + 1) * k], 0.0))
@@ -169,7 +159,7 @@ def main(argv=None) -> int:
         tp = ToolPath(passes=list(tp0.passes) + [cut.tip(p) for p in pen.passes], safe_z=tp0.safe_z,
                       pass_ids=list(tp0.pass_ids) + [-1] * len(pen.passes),
                       hops=(list(tp0.hops) + [None] * len(pen.passes)) if tp0.hops else [])
-        prog, st = _written(tp)
+        prog, st = _common.written(tp)
         s = _common.verify_program(m, prog, samples, h, r, e).summary["reachable"]["scallop"]
         rows.append((name, int(sel.sum()), int(ssel.sum()), cpu, pen.stats["feed_mm"] / 1000,
                      st["feed_length_mm"] / 1000, st["machining_time_min"], s["p999"] / h, s["p99"] / h))

@@ -93,7 +93,7 @@ def table(summary: dict) -> str:
     t = q["tangent_test"]
     out.append(f"unreachable by a 3-axis ball (undercut, tighter than the ball, or beyond any ball position): "
                f"{100 * q['unreachable_fraction']:.3g} % of the interior (reach depth "
-               f"{_fmt(summary['thresholds'].get('reach_depth'))}); limits judged on: {summary['judged_on']}")
+               f"{_fmt(summary['thresholds']['reach_depth'])}); limits judged on: {summary['judged_on']}")
     if not q.get("searched", True):
         out.append("  (crease material no ball position removes is left out only with --judge reachable or --rest)")
     else:

@@ -45,24 +45,6 @@ import bench_raster as BR  # noqa: E402
 SHADOW_AT = (0.25, 0.5, 0.75)
 
 
-def _tops(cutter, XY):
-    """The part's top at ``XY`` (``folds._top``; -inf where no triangle is over the point)."""
-    from numba import njit
-
-    from conformill.folds import _top
-
-    @njit(cache=False)
-    def run(X, Y, T, Bt, gx0, gy0, cell, ncx, ncy, cstart, ctri):
-        out = np.empty(X.shape[0])
-        for i in range(X.shape[0]):
-            out[i] = _top(X[i], Y[i], T, Bt, gx0, gy0, cell, ncx, ncy, cstart, ctri)
-        return out
-
-    gx0, gy0, cell, ncx, ncy = cutter._grid
-    return run(np.ascontiguousarray(XY[:, 0]), np.ascontiguousarray(XY[:, 1]), cutter._T, cutter._B, gx0, gy0, cell,
-               ncx, ncy, cutter._cstart, cutter._ctri)
-
-
 def _threshold(text):
     if text == "all":
         return None
@@ -87,6 +69,7 @@ def main(argv=None) -> int:
         ap.error(str(exc))
     from conformill import pencil
     from conformill.cutter import BallCutter
+    from conformill.folds import part_tops
     from conformill.pipeline import Job, plan
     from conformill.types import ToolPath
     from conformill.verify.samples import SurfaceSamples
@@ -101,8 +84,7 @@ def main(argv=None) -> int:
     m = res.mesh
     cut = BallCutter(m.V, m.F, r)
     spacing = 1.0 / math.sqrt(D)
-    fp, _ = pencil.fold_centres(cut, spacing, h)
-    keep = fp.shadow > 0.15 * h
+    fp, keep = pencil.fold_centres(cut, spacing, h)
     C, qa, qb = fp.centres[keep], fp.contact_a[keep], fp.contact_b[keep]
     areas = pencil._face_areas(m.V, m.F)
     P, N, faces = pencil.surface_samples(m.V, m.F, min(D, pencil._MAX_SAMPLES / float(areas.sum())), 0, areas=areas,
@@ -118,7 +100,7 @@ def main(argv=None) -> int:
     # each steep centre's sample (along its normal), in one cast
     k = len(C)
     M = np.vstack([qa + f * (qb - qa) for f in SHADOW_AT])
-    z = _tops(cut, M)
+    z = part_tops(cut, M[:, :2])
     pts, nrm, ok = [], [], []
     for i in range(len(SHADOW_AT)):
         zi, Mi = z[i * k:(i + 1) * k], M[i * k:(i + 1) * k]
@@ -153,7 +135,9 @@ def main(argv=None) -> int:
         sel = np.ones(k, bool) if thr is None else fold_rest > thr[0] * h
         ssel = np.ones(len(steep), bool) if thr is None else steep_rest > thr[1] * h
         c0 = time.process_time()
-        found = pencil._chains_through(cut, np.vstack([C[sel], steep[ssel]]), spacing, 1, job.settle * h, {})
+        B = np.vstack([C[sel], steep[ssel]])
+        found = pencil.chains_of(cut, pencil.PencilFound(centres=B, probes=np.full((len(B), 1, 3), np.nan),
+                                                         spacing=spacing), 1, job.settle * h)
         pen = pencil.link_chains(cut, found, e, link_max, start)
         cpu = time.process_time() - c0
         tp = ToolPath(passes=list(tp0.passes) + [cut.tip(p) for p in pen.passes], safe_z=tp0.safe_z,

@@ -19,6 +19,8 @@ length and the time for the knobs that densify the program:
   ``settle 1``: the fold search over a pattern with ``Job.settle`` 0 / 1 (session 24);
 * ``hop L`` (with ``, pencil folds`` and ``, density 20``): ``Job.hop_lift`` L (``--hop-lifted``,
   session 27): the runs lifted more than L mm are hopped over where that is quicker;
+* ``..., left 0.5``: the same fold pencil cut only through the fold points where the
+  pattern's passes left more than 0.5 h (``Job.pencil_left``, ``--pencil-left``; session 31);
 * ``fine``: the same job on the same surface split once more (every triangle into four at its
   edge midpoints, :func:`conformill.mesh.split.split_midpoints`; a planar split, so the surface and the
   drop-cutter's heights are the same): the per-vertex quadratic fit then works at half the
@@ -83,6 +85,9 @@ for _L in (1.0, 3.0, 6.0):
     VARIANTS[f"hop {_L:g}, pencil folds"] = ({"hop_lift": _L, "pencil": True, "pencil_search": "folds"}, 1.0, False)
     VARIANTS[f"hop {_L:g}, pencil folds, density 20"] = ({"hop_lift": _L, "pencil": True, "pencil_search": "folds",
                                                          "pencil_density": 20.0}, 1.0, False)
+# session 31: the fold pencil only where the pattern left more than 0.5 h (Job.pencil_left)
+for _name in [n for n in VARIANTS if "pencil folds" in n and "settle" not in n]:
+    VARIANTS[f"{_name}, left 0.5"] = ({**VARIANTS[_name][0], "pencil_left": 0.5}, *VARIANTS[_name][1:])
 
 
 def main(argv=None) -> int:

@@ -101,6 +101,9 @@ def test_plan_programs_run_in_linuxcnc(part, tmp_path, pattern):
     (["--tool-radius", "4", "--scallop", "0.1", "--verify", "--verify-scallop", "nan"], 3, "verify-scallop"),
     (["--tool-radius", "4", "--scallop", "0.1", "--pencil", "--pencil-density", "-5"], 3, "pencil-density"),
     (["--tool-radius", "4", "--scallop", "0.1", "--pencil", "--pencil-density", "nan"], 3, "pencil-density"),
+    (["--tool-radius", "4", "--scallop", "0.1", "--pencil", "--pencil-search", "folds", "--pencil-left", "-1"], 3,
+     "pencil-left"),
+    (["--tool-radius", "4", "--scallop", "0.1", "--pencil", "--pencil-left", "0.5"], 3, "pencil-left"),
     # a millimetre part read as metres: refused at once, not planned until memory runs out
     (["--tool-radius", "4", "--scallop", "0.01", "--scale", "10000"], 3, "--scale"),
 ])
@@ -166,6 +169,15 @@ def test_pencil_option_reaches_the_report_the_header_and_the_summary(part, tmp_p
     assert r["job"]["pencil_search"] == "folds" and r["pencil"]["grid_points"] > 0
     assert "(param pencil: folds, grid points per mm2 2)" in out.read_text()
     assert "grid points)" in capsys.readouterr().out
+    # and only where the pattern left material
+    assert main(["plan", str(part), "--pattern", "contour", "--tool-radius", "4", "--scallop", "0.5",
+                 "--pencil", "--pencil-search", "folds", "--pencil-density", "2", "--pencil-left", "0.5",
+                 "-o", str(out), "--report", str(rep)]) == 0
+    r = json.loads(rep.read_text())
+    assert r["job"]["pencil_left"] == 0.5 and r["pencil"]["left_h"] == 0.5
+    assert 0 <= r["pencil"]["fold_points_cut"] <= r["pencil"]["centres"] and "pencil_left" in r["timings_s"]
+    assert "(param pencil: folds, grid points per mm2 2, where the pattern leaves above 0.5 H)" in out.read_text()
+    assert f"{r['pencil']['fold_points_cut']} of them where the pattern left above 0.5 H" in capsys.readouterr().out
     _refused_choice(part, tmp_path, capsys, "--pencil-search", "grid")
     # without the option the header says nothing of it (the default program is unchanged)
     plain = tmp_path / "plain.nc"

@@ -345,8 +345,8 @@ def test_plan_with_pencil_adds_passes_after_the_same_program(tmp_path, search):
     assert left["base"].max() > left["pencil"].max() + 0.01  # the rows alone leave more between them
 
 
-@pytest.mark.parametrize("search", pencil.SEARCHES)
-def test_plan_searches_beside_the_pattern_for_the_same_program(search):
+@pytest.mark.parametrize("search, left", [("samples", None), ("folds", None), ("folds", 0.5)])
+def test_plan_searches_beside_the_pattern_for_the_same_program(search, left):
     # with two numba threads the plan runs the pencil's search beside the pattern stage
     # (pencil.BackgroundChains), with one in line after it: the same passes, point for point
     import numba
@@ -354,7 +354,8 @@ def test_plan_searches_beside_the_pattern_for_the_same_program(search):
     from conformill.passes import threads_can_overlap
 
     m = syn.v_groove(a_deg=8.0, half=10.0, step=0.5)
-    job = Job(pattern="zigzag", tool_radius=R, scallop=0.1, tolerance=0.01, pencil=True, pencil_search=search)
+    job = Job(pattern="zigzag", tool_radius=R, scallop=0.1, tolerance=0.01, pencil=True, pencil_search=search,
+              pencil_left=left)
     n = numba.get_num_threads()
     if n < 2:
         pytest.skip("one numba thread: nothing runs beside")
@@ -463,3 +464,64 @@ def test_a_failing_stage_stops_the_background_search(monkeypatch):
         plan(m, job)
     assert not [t for t in threading.enumerate() if t.name in ("conformill-pencil", "conformill-cutter")]
 
+
+
+def test_plan_cuts_the_fold_pencil_where_the_pattern_left_material():
+    # Job.pencil_left: the fold points cut are exactly those with a shadow point farther
+    # than r + F h from every centre move of the pattern (brute force here); the pattern's
+    # passes are the same; F = 0 keeps the most, a large F none (the groove has no steep
+    # walls, so then no pencil pass is cut at all)
+    from conformill.folds import shadow_probes
+
+    m = syn.v_groove(a_deg=8.0, half=10.0, step=0.5)
+    h = 0.1
+    job = Job(pattern="zigzag", tool_radius=R, scallop=h, tolerance=0.01, pencil=True, pencil_search="folds")
+    full = plan(m, job)
+    cut = BallCutter(m.V, m.F, R)
+    fp, deep = pencil.fold_centres(cut, 1 / np.sqrt(30.0), h)
+    probes = shadow_probes(cut, fp.contact_a[deep], fp.contact_b[deep])
+    pattern = [p for p, i in zip(full.toolpath.passes, full.toolpath.pass_ids) if i >= 0]
+    A = np.vstack([p[:-1] for p in pattern]) + [0, 0, R]
+    B = np.vstack([p[1:] for p in pattern]) + [0, 0, R]
+    v = B - A
+    dist = np.empty(probes.shape[:2])
+    for i, q in enumerate(probes.reshape(-1, 3)):
+        w = q - A
+        t = np.clip((w * v).sum(1) / (v * v).sum(1), 0, 1)
+        dist.flat[i] = np.linalg.norm(w - t[:, None] * v, axis=1).min()
+    cuts = {}
+    for left in (0.0, 0.5, 1.0, 50.0):
+        res = plan(m, Job(**{**job.__dict__, "pencil_left": left}))
+        st = res.report["pencil"]
+        assert st["left_h"] == left and st["centres"] == int(deep.sum())
+        assert st["fold_points_cut"] == int((dist > R + left * h).any(axis=1).sum())
+        cuts[left] = st["fold_points_cut"]
+        n = len(pattern)
+        for a, b in zip(pattern, res.toolpath.passes[:n]):
+            np.testing.assert_array_equal(a, b)
+        if cuts[left] == 0:
+            assert len(res.toolpath.passes) == n and st["passes"] == 0
+    assert deep.sum() >= cuts[0.0] > cuts[0.5] > cuts[50.0] == 0 and cuts[0.5] >= cuts[1.0]
+    assert full.report["pencil"]["thinned"] > plan(m, Job(**{**job.__dict__, "pencil_left": 0.5})).report[
+        "pencil"]["thinned"]
+
+
+def test_where_left_keeps_what_has_no_probes():
+    # the steep walls' centres (and the per-sample search's) carry no probes: always cut
+    found = pencil.PencilFound(centres=np.zeros((3, 3)), probes=np.array(
+        [[[0.0, 0.0, 0.0]], [[np.nan] * 3], [[0.0, 50.0, 0.0]]]), spacing=0.2)
+    tips = [np.array([[-5.0, 0.0, 0.0], [5.0, 0.0, 0.0]])]
+    np.testing.assert_array_equal(pencil.where_left(found, tips, R, 0.01), [False, True, True])
+
+
+@pytest.mark.parametrize("over, words", [
+    ({"pencil_left": -0.5}, "pencil-left must be a number >= 0"),
+    ({"pencil_left": float("nan")}, "pencil-left must be a number >= 0"),
+    ({"pencil_search": "samples"}, "it needs the fold pencil"),
+    ({"pencil": False}, "it needs the fold pencil"),
+])
+def test_pencil_left_bad_jobs(over, words):
+    job = Job(pattern="zigzag", tool_radius=R, scallop=0.1, tolerance=0.01, pencil=True, pencil_search="folds",
+              pencil_left=0.5)
+    with pytest.raises(PlanningError, match=words):
+        plan(syn.v_groove(a_deg=8.0, half=10.0, step=0.5), Job(**{**job.__dict__, **over}))

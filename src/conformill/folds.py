@@ -55,7 +55,7 @@ from conformill.cutter import _drop_point, _set_drop, _set_top
 from conformill.errors import PlanningError
 from conformill.geometry.closest import closest_on_triangle
 
-__all__ = ["FoldPoints", "fold_points", "wedge_jump"]
+__all__ = ["FoldPoints", "fold_points", "part_tops", "shadow_probes", "wedge_jump"]
 
 #: Most triangles per side of a crossing's model (more rounds than this end the search:
 #: the crossing is then the model's, its height lifted onto ``D``).
@@ -248,6 +248,37 @@ def _shadows(C, QA, QB, r, T, Bt, gx0, gy0, cell, ncx, ncy, cstart, ctri, npts):
                 g = max(g, C[k, 2] - math.sqrt(r2 - d2) - zs)
         out[k] = g
     return out
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _tops(X, Y, T, Bt, gx0, gy0, cell, ncx, ncy, cstart, ctri):
+    """:func:`_top` at each ``(X[i], Y[i])``."""
+    out = np.empty(X.shape[0])
+    for i in prange(X.shape[0]):
+        out[i] = _top(X[i], Y[i], T, Bt, gx0, gy0, cell, ncx, ncy, cstart, ctri)
+    return out
+
+
+def part_tops(cutter, XY) -> np.ndarray:
+    """Height of the part's top at each point of ``XY (n, 2)``: the highest triangle over it
+    (``-inf`` where none is)."""
+    XY = np.asarray(XY, dtype=np.float64).reshape(-1, 2)
+    gx0, gy0, cell, ncx, ncy = cutter._grid
+    return _tops(np.ascontiguousarray(XY[:, 0]), np.ascontiguousarray(XY[:, 1]), cutter._T, cutter._B, gx0, gy0,
+                 cell, ncx, ncy, cutter._cstart, cutter._ctri)
+
+
+def shadow_probes(cutter, contact_a, contact_b, at=(0.25, 0.5, 0.75)) -> np.ndarray:
+    """Points of the part in the shadows of fold points: at the fractions ``at`` of the XY
+    segment between the two contacts, on the part's top there (or on the segment itself
+    where no triangle is over the point). Returns ``(k, len(at), 3)``."""
+    qa = np.asarray(contact_a, dtype=np.float64).reshape(-1, 3)
+    qb = np.asarray(contact_b, dtype=np.float64).reshape(-1, 3)
+    f = np.asarray(at, dtype=np.float64)
+    M = qa[:, None, :] + f[None, :, None] * (qb - qa)[:, None, :]
+    z = part_tops(cutter, M[:, :, :2].reshape(-1, 2)).reshape(M.shape[:2])
+    M[:, :, 2] = np.where(np.isfinite(z), z, M[:, :, 2])
+    return M
 
 
 def _grid_box(cutter):

@@ -82,8 +82,8 @@ from conformill.cutter import _drop_point, _set_drop
 from conformill.errors import PlanningError
 from conformill.types import PENCIL_SEARCHES
 
-__all__ = ["SEARCHES", "PencilChains", "PencilResult", "best_centres", "link_chains", "pencil_chains",
-           "pencil_passes", "surface_samples"]
+__all__ = ["SEARCHES", "PencilChains", "PencilFound", "PencilResult", "best_centres", "chains_of", "link_chains",
+           "pencil_chains", "pencil_passes", "pencil_search", "surface_samples", "where_left"]
 
 log = logging.getLogger(__name__)
 
@@ -107,6 +107,9 @@ _CHUNK = 256
 _STEEP_NZ = 0.2
 #: The searches :func:`pencil_passes` knows.
 SEARCHES = PENCIL_SEARCHES
+#: Where between a fold point's two contacts the pattern's rest is read (``Job.pencil_left``;
+#: session 30's ``benchmarks/bench_pencil_filter.py`` read the same three).
+_SHADOW_AT = (0.25, 0.5, 0.75)
 #: Most samples the stage draws (about 0.2 kB each while it runs): a larger part gets a
 #: lower density, with a warning.
 _MAX_SAMPLES = 4_000_000
@@ -642,6 +645,42 @@ class PencilChains:
     stats: dict = field(default_factory=dict)
 
 
+@dataclass(frozen=True, eq=False)
+class PencilFound:
+    """The centres the pencil stage's search found, before they are thinned and chained.
+
+    Attributes
+    ----------
+    centres : (k, 3) float64
+        Ball centres on the drop surface: with the fold search, the fold points first, then
+        the steep walls' centres.
+    probes : (k, p, 3) float64
+        For each centre, points of the part where the pattern's rest tells whether its pass
+        is needed (``Job.pencil_left``): a fold point's shadow at a quarter, half and three
+        quarters of the way between its contacts. NaN rows: always cut (the steep centres,
+        and every centre of the per-sample search).
+    spacing : float
+        The search's spacing (mm): the thinning and chaining lengths scale with it.
+    stats : dict
+        As :attr:`PencilChains.stats`, without the chains' figures.
+    """
+
+    centres: np.ndarray
+    probes: np.ndarray
+    spacing: float
+    stats: dict = field(default_factory=dict)
+
+
+def _check_search(h, density, low, high, search):
+    for name, v in (("scallop", h), ("pencil density", density)):
+        if not (np.isfinite(v) and v > 0):
+            raise PlanningError(f"pencil: {name} must be a positive number, got {v}")
+    if not (np.isfinite(low) and np.isfinite(high) and 0 <= low < high):
+        raise PlanningError(f"pencil: the band of the rest needs 0 <= low < high, got {low}, {high}")
+    if search not in SEARCHES:
+        raise PlanningError(f"pencil: search must be one of {', '.join(SEARCHES)}, got {search!r}")
+
+
 def pencil_chains(cutter, V, F, h: float, *, search: str = "samples", density: float = 30.0, low: float = 0.15,
                   high: float = 1.0, min_chain: int = 1, settle_tol: float = 0.0, seed: int = 0, progress=None,
                   cancelled=None) -> PencilChains | None:
@@ -651,21 +690,32 @@ def pencil_chains(cutter, V, F, h: float, *, search: str = "samples", density: f
     runs it beside the pattern stage where numba's threads allow
     (:func:`conformill.passes.threads_can_overlap`). Parameters as for
     :func:`pencil_passes`; ``cancelled``, a callable, is asked between the steps of the
-    search, and ``None`` is returned once it says true.
+    search, and ``None`` is returned once it says true. It is :func:`pencil_search`, then
+    :func:`chains_of`.
 
     Returns
     -------
     PencilChains or None
     """
-    for name, v in (("scallop", h), ("pencil density", density)):
-        if not (np.isfinite(v) and v > 0):
-            raise PlanningError(f"pencil: {name} must be a positive number, got {v}")
-    if not (np.isfinite(low) and np.isfinite(high) and 0 <= low < high):
-        raise PlanningError(f"pencil: the band of the rest needs 0 <= low < high, got {low}, {high}")
     if int(min_chain) < 1:
         raise PlanningError(f"pencil: min_chain must be at least 1, got {min_chain}")
-    if search not in SEARCHES:
-        raise PlanningError(f"pencil: search must be one of {', '.join(SEARCHES)}, got {search!r}")
+    found = pencil_search(cutter, V, F, h, search=search, density=density, low=low, high=high, seed=seed,
+                          progress=progress, cancelled=cancelled)
+    if found is None or (cancelled is not None and cancelled()):
+        return None
+    return chains_of(cutter, found, min_chain, settle_tol)
+
+
+def pencil_search(cutter, V, F, h: float, *, search: str = "samples", density: float = 30.0, low: float = 0.15,
+                  high: float = 1.0, seed: int = 0, progress=None, cancelled=None) -> PencilFound | None:
+    """The search of :func:`pencil_passes`: the centres, not yet chained (parameters and
+    ``cancelled`` as for :func:`pencil_chains`).
+
+    Returns
+    -------
+    PencilFound or None
+    """
+    _check_search(h, density, low, high, search)
     say = progress or (lambda f: None)
     stop = cancelled or (lambda: False)
     V = np.asarray(V, dtype=np.float64)
@@ -673,7 +723,7 @@ def pencil_chains(cutter, V, F, h: float, *, search: str = "samples", density: f
     areas = _face_areas(V, F)
     area = float(areas.sum())
     if search == "folds":
-        from conformill.folds import _MAX_GRID, _grid_box
+        from conformill.folds import _MAX_GRID, _grid_box, shadow_probes
 
         lo, hi = _grid_box(cutter)
         plane = float(np.prod(hi - lo))
@@ -682,18 +732,21 @@ def pencil_chains(cutter, V, F, h: float, *, search: str = "samples", density: f
                         "per mm^2", plane, density, density * plane / 1e6, 0.9 * _MAX_GRID / plane)
             density = 0.9 * _MAX_GRID / plane
         spacing = 1.0 / math.sqrt(density)
-        fp, folds = fold_centres(cutter, spacing, h, low)
+        fp, kept = fold_centres(cutter, spacing, h, low)
         say(0.5)
         if stop():
             return None
         n_steep, steep = steep_centres(cutter, V, F, h, min(density, _MAX_SAMPLES / area), low, high, seed, areas)
-        stats = {"search": "folds", **fp.stats, "fold_points": int(len(fp.centres)), "centres": int(len(folds)),
+        stats = {"search": "folds", **fp.stats, "fold_points": int(len(fp.centres)), "centres": int(kept.sum()),
                  "steep_samples": n_steep, "steep_centres": int(len(steep)),
                  "density_per_mm2": float(density), "low": float(low), "high": float(high)}
+        probes = shadow_probes(cutter, fp.contact_a[kept], fp.contact_b[kept], _SHADOW_AT)
+        probes = np.concatenate([probes, np.full((len(steep), len(_SHADOW_AT), 3), np.nan)])
         say(0.8)
         if stop():
             return None
-        return _chains_through(cutter, np.vstack([folds, steep]), spacing, min_chain, settle_tol, stats)
+        return PencilFound(centres=np.vstack([fp.centres[kept], steep]), probes=probes, spacing=spacing,
+                           stats=stats)
     if density * area > _MAX_SAMPLES:
         log.warning("pencil: %.0f mm^2 at %.3g samples per mm^2 would be %.3gM samples; using %.3g per mm^2 "
                     "(at most %dM)", area, density, density * area / 1e6, _MAX_SAMPLES / area, _MAX_SAMPLES // 10**6)
@@ -716,17 +769,33 @@ def pencil_chains(cutter, V, F, h: float, *, search: str = "samples", density: f
              "centres": int(useful.sum()), "given_up": int(np.count_nonzero(state == 2)),
              "rounds_used_up": int(np.count_nonzero(state == 3)), "density_per_mm2": float(density),
              "low": float(low), "high": float(high)}
-    return _chains_through(cutter, C[useful], 1.0 / math.sqrt(density), min_chain, settle_tol, stats)
+    n = int(useful.sum())
+    return PencilFound(centres=C[useful], probes=np.full((n, 1, 3), np.nan), spacing=1.0 / math.sqrt(density),
+                       stats=stats)
+
+
+def where_left(found: PencilFound, passes, radius: float, depth: float) -> np.ndarray:
+    """Which of ``found``'s centres to cut after the pattern's tip ``passes``: those with a
+    probe where the passes leave more than ``depth`` (:func:`conformill.pattern_rest.uncut_beyond`),
+    and those without probes. Returns ``(k,)`` bool."""
+    from conformill.pattern_rest import centre_moves, uncut_beyond
+
+    probed = np.isfinite(found.probes).all(axis=2).all(axis=1)
+    keep = ~probed
+    if probed.any():
+        A, B = centre_moves(passes, radius)
+        keep[probed] = uncut_beyond(found.probes[probed], A, B, radius, depth)
+    return keep
 
 
 def fold_centres(cutter, spacing: float, h: float, low: float = 0.15):
-    """The fold search's first step: fold points on an XY grid of ``spacing`` (mm) whose
-    shadow is deeper than ``low * h``. Returns the :class:`conformill.folds.FoldPoints` and
-    those centres ``(k, 3)``."""
+    """The fold search's first step: fold points on an XY grid of ``spacing`` (mm). Returns
+    the :class:`conformill.folds.FoldPoints` and which of them (``(k,)`` bool) have a shadow
+    deeper than ``low * h``."""
     from conformill.folds import fold_points, wedge_jump
 
     fp = fold_points(cutter, spacing, wedge_jump(cutter.radius, low * h))
-    return fp, fp.centres[fp.shadow > low * h]
+    return fp, fp.shadow > low * h
 
 
 def steep_centres(cutter, V, F, h: float, density: float, low: float = 0.15, high: float = 1.0, seed: int = 0,
@@ -741,8 +810,11 @@ def steep_centres(cutter, V, F, h: float, density: float, low: float = 0.15, hig
     return int(len(P)), C[useful]
 
 
-def _chains_through(cutter, B, spacing, min_chain, settle_tol, stats) -> PencilChains:
-    """Thin the centres ``B (k, 3)``, chain them, settle the chains."""
+def chains_of(cutter, found: PencilFound, min_chain: int = 1, settle_tol: float = 0.0, keep=None) -> PencilChains:
+    """Thin ``found``'s centres (those ``keep`` says, a ``(k,)`` bool; default all), chain
+    them and settle the chains (``min_chain`` and ``settle_tol`` as for :func:`pencil_passes`)."""
+    B = found.centres if keep is None else found.centres[np.asarray(keep, dtype=bool)]
+    spacing = found.spacing
     # thin to a fifth of the sample spacing, chain within 3.3 spacings (0.03 / 0.5 mm on
     # igea's 43 per mm^2, the values measured there)
     kept = _thin(np.ascontiguousarray(B[:, :2]), np.argsort(B[:, 0], kind="stable"), 0.2 * spacing) \
@@ -752,7 +824,7 @@ def _chains_through(cutter, B, spacing, min_chain, settle_tol, stats) -> PencilC
     n_settled = 0
     if settle_tol > 0:
         chains, n_settled, _ = cutter.settle_pieces(chains, settle_tol)
-    return PencilChains(chains=chains, stats={**stats, "thinned": int(len(B)), "chains": len(chains),
+    return PencilChains(chains=chains, stats={**found.stats, "thinned": int(len(B)), "chains": len(chains),
                                               "settled_points": int(n_settled)})
 
 
@@ -786,15 +858,20 @@ class BackgroundChains:
         search is not run).
     args, kwargs
         For :func:`pencil_chains` after the cutter.
+    chain : bool
+        False: run only :func:`pencil_search` (``kwargs`` for it), whose centres the caller
+        chains itself once it knows which to keep (``Job.pencil_left``); :meth:`result`
+        then gives the :class:`PencilFound`, and nothing is linked.
     """
 
-    def __init__(self, get_cutter, *args, **kwargs):
+    def __init__(self, get_cutter, *args, chain: bool = True, **kwargs):
         import threading
 
         import numba
 
         self._nthreads = numba.get_num_threads()  # thread-local in numba: hand it over
         self._get_cutter, self._args, self._kwargs = get_cutter, args, kwargs
+        self._search = pencil_chains if chain else pencil_search
         self._stop = threading.Event()
         self._searched = threading.Event()  # the search ended (found, failed or stopped)
         self._go_link = threading.Event()  # link_from() or the end: the worker may go on
@@ -818,12 +895,13 @@ class BackgroundChains:
             if cutter is None or self._stop.is_set():
                 return
             t0 = time.perf_counter()
-            self._found = pencil_chains(cutter, *self._args, cancelled=self._stop.is_set,
-                                        progress=lambda f: setattr(self, "fraction", f), **self._kwargs)
+            self._found = self._search(cutter, *self._args, cancelled=self._stop.is_set,
+                                       progress=lambda f: setattr(self, "fraction", f), **self._kwargs)
             self.busy_s = time.perf_counter() - t0
             self._searched.set()
             self._go_link.wait()
-            if self._found is not None and self._link_args is not None and not self._stop.is_set():
+            if (isinstance(self._found, PencilChains) and self._link_args is not None
+                    and not self._stop.is_set()):
                 t0 = time.perf_counter()
                 try:
                     self._linked = link_chains(cutter, self._found, *self._link_args)
@@ -842,8 +920,8 @@ class BackgroundChains:
             self._link_args = (float(tol), float(link_max), np.array(start_xy, dtype=np.float64).reshape(2))
             self._go_link.set()
 
-    def result(self, wait=None) -> PencilChains:
-        """The chains, once the search is done (``wait(fraction)`` is called every 0.2 s
+    def result(self, wait=None) -> PencilChains | PencilFound:
+        """The chains (or, with ``chain=False``, the centres), once the search is done (``wait(fraction)`` is called every 0.2 s
         until then); raises what the search raised."""
         while not self._searched.wait(timeout=0.2):
             if wait is not None:

@@ -110,6 +110,13 @@ class Job:
         less time (igea 2.1 against 3.7 s more than the default since session 24) and
         left the same or a lower scallop on seven of eight, for 1-15 points more feed
         (README, "Pencil passes", sessions 23-24).
+    pencil_left : float or None
+        With the fold search: cut the pencil only through the fold points where the
+        pattern's passes leave more than this many ``h`` in the fold's shadow, by the
+        planner's estimate (:func:`conformill.pencil.where_left`,
+        :mod:`conformill.pattern_rest`); the steep walls' centres are all kept. None
+        (default): every fold point. Session 31 measured 0.5 on the scans (README,
+        "Pencil passes").
     hop_lift : float
         Hop over the runs of a path whose CC points the drop-cutter lifts more than this
         (mm) above their planned contact, where the hop (rapids clear of the part by 1 mm,
@@ -143,6 +150,7 @@ class Job:
     pencil: bool = False
     pencil_density: float = 30.0
     pencil_search: str = "samples"
+    pencil_left: float | None = None
     hop_lift: float = 0.0
     rapid: float = 5000.0
 
@@ -191,6 +199,12 @@ def check_job(job: Job) -> None:
     if job.pencil_search not in PENCIL_SEARCHES:
         raise PlanningError(f"pencil-search must be {' or '.join(map(repr, sorted(PENCIL_SEARCHES)))}, "
                             f"got {job.pencil_search!r}")
+    if job.pencil_left is not None:
+        if not (np.isfinite(job.pencil_left) and job.pencil_left >= 0):
+            raise PlanningError(f"pencil-left must be a number >= 0 (x h), got {job.pencil_left}")
+        if not (job.pencil and job.pencil_search == "folds"):
+            raise PlanningError("pencil-left keeps fold points: it needs the fold pencil (--pencil --pencil-search "
+                                "folds)")
     if not (np.isfinite(job.hop_lift) and job.hop_lift >= 0):
         raise PlanningError(f"hop-lifted must be a number >= 0 (mm; 0: off), got {job.hop_lift}")
 
@@ -396,13 +410,18 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
                           hop_lift=job.hop_lift, rates=(job.feed, job.plunge_rate, job.rapid))
     background = None
     search_args = (mesh.V, mesh.F, h)
-    search_kw = {"search": job.pencil_search, "density": job.pencil_density, "settle_tol": job.settle * h}
+    search_kw = {"search": job.pencil_search, "density": job.pencil_density}
+    # with pencil_left the centres are chained only once the pattern's passes tell which
+    # to keep; else the search chains them at once
+    filtered = job.pencil_left is not None
+    chain_kw = {} if filtered else {"settle_tol": job.settle * h}
     if job.pencil and builder.threaded:
         from conformill.pencil import BackgroundChains
 
         # the pencil's search needs only the part and the ball: it runs beside the map and
         # the pattern stage, on the cutter the worker builds (the same chains either way)
-        background = BackgroundChains(builder.wait_cutter, *search_args, **search_kw)
+        background = BackgroundChains(builder.wait_cutter, *search_args, chain=not filtered, **search_kw,
+                                      **chain_kw)
     with builder, (background or nullcontext()):  # stop the workers if a stage fails
         say("parameterize", 0.0)
         with timer("parameterize"):
@@ -466,7 +485,7 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
                 else:
                     domain = plan_spiral(planner, poly, delta, progress=prog, adaptive=adaptive,
                                          emit=builder.add)
-        if background is not None:
+        if background is not None and not filtered:
             # the pencil's links start from where the passes end: the worker links while
             # the cutter finishes, and the result is used only if the passes end there
             end = builder.end_xy()
@@ -487,19 +506,31 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
                      "minutes_saved": builder.hop_saved}
         pencil = None
         if job.pencil:
-            from conformill.pencil import link_chains, pencil_chains
+            from conformill.pencil import chains_of, link_chains, pencil_chains, pencil_search, where_left
 
             say("pencil", 0.0)
             with timer("pencil"):  # beside the other stages: the wait for the search and links
                 cutter = builder.cutter if builder.cutter is not None else BallCutter(mesh.V, mesh.F, r)
                 start = passes[-1][-1, :2] if passes else mesh.V[:, :2].mean(axis=0)
-                if background is not None:
+                if filtered:  # the centres where the pattern left more than pencil_left h
+                    found = background.result(wait=lambda f: say("pencil", 0.8 * f)) if background is not None \
+                        else pencil_search(cutter, *search_args, **search_kw, progress=lambda f: say("pencil", 0.8 * f))
+                    if background is not None:
+                        timer.t["pencil_busy"] = background.busy_s
+                    with timer("pencil_left"):
+                        keep = where_left(found, passes, r, job.pencil_left * h)
+                    probed = np.isfinite(found.probes).all(axis=2).all(axis=1)
+                    found = replace(found, stats={**found.stats, "left_h": float(job.pencil_left),
+                                                  "fold_points_cut": int(np.count_nonzero(keep & probed))})
+                    found = chains_of(cutter, found, 1, job.settle * h, keep)
+                    pencil = link_chains(cutter, found, e, link_max, start)
+                elif background is not None:
                     pencil = background.linked(start, e, link_max, wait=lambda f: say("pencil", 0.9 * f))
                     timer.t["pencil_busy"] = background.busy_s + background.link_s
                     if pencil is None:  # the passes did not end where the builder expected
                         pencil = link_chains(cutter, background.result(), e, link_max, start)
                 else:
-                    found = pencil_chains(cutter, *search_args, **search_kw,
+                    found = pencil_chains(cutter, *search_args, **search_kw, **chain_kw,
                                           progress=lambda f: say("pencil", 0.9 * f))
                     pencil = link_chains(cutter, found, e, link_max, start)
                 passes = passes + [cutter.tip(p) for p in pencil.passes]
@@ -526,7 +557,7 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
                 "forward_chord_tolerance": e_fwd, "forward_chord_tolerance_convex": e_cvx,
                 "concave_steps": job.concave_steps, "spacing": job.spacing, "settle": job.settle,
                 "fit": job.fit, "pencil": job.pencil, "pencil_density": job.pencil_density,
-                "pencil_search": job.pencil_search},
+                "pencil_search": job.pencil_search, "pencil_left": job.pencil_left},
         "orientation": orient_info,
         "parameterization": {"boundary": param.kind, "domain": param.domain, "corners": param.corners,
                              "solver": param.solver, "residual": param.residual, "fallbacks": param.fallbacks,

@@ -54,6 +54,10 @@ def add_arguments(p) -> None:
                         "(samples, default), or the folds of the drop surface crossing an XY grid (folds: on the "
                         "scans measured an 18-51 %% quicker stage and the same or a lower scallop, for 1-15 points "
                         "more feed)")
+    p.add_argument("--pencil-left", type=float, default=None, metavar="F",
+                   help="with --pencil-search folds: cut the pencil only through the fold points where the "
+                        "pattern's passes leave more than F H in the fold's shadow (estimated from the passes; "
+                        "the steep walls' centres are all kept). Default: every fold point")
     p.add_argument("--hop-lifted", type=float, default=0.0, metavar="L",
                    help="hop over runs of the path where the drop-cutter lifts the ball more than L mm above "
                         "its planned contact (undercuts, pockets tighter than the ball) where the hop is quicker "
@@ -109,7 +113,7 @@ def run(args) -> int:
               weights=args.weights, corners=_corners(args.corners), max_step=args.max_step, spindle=args.spindle,
               concave_steps=args.concave_steps, spacing=args.spacing, settle=args.settle, fit=args.fit,
               pencil=args.pencil, pencil_density=args.pencil_density, hop_lift=args.hop_lifted,
-              rapid=args.rapid,
+              rapid=args.rapid, pencil_left=args.pencil_left,
               **({} if args.pencil_search is None else {"pencil_search": args.pencil_search}))
     from conformill.pipeline import check_job
 
@@ -158,7 +162,8 @@ def _run_job(args, job, judge_h: float) -> int:
     }
     if job.pencil:  # only then: the default program's bytes stay as they were
         header["pencil"] = (f"samples per mm2 {job.pencil_density:g}" if job.pencil_search == "samples"
-                            else f"folds, grid points per mm2 {job.pencil_density:g}")
+                            else f"folds, grid points per mm2 {job.pencil_density:g}"
+                            + ("" if job.pencil_left is None else f", where the pattern leaves above {job.pencil_left:g} H"))
     if job.hop_lift > 0:  # likewise
         header["hop lifted"] = f"runs lifted more than {job.hop_lift:g} mm, rapid {job.rapid:g}"
     with all_or_nothing(args.output, args.report, args.plot, args.html):
@@ -258,7 +263,9 @@ def peak_rss_mb() -> float:
 
 def _pencil_source(st: dict) -> str:
     if st.get("search") == "folds":
-        return f"{st['centres']} fold points ({st['grid_points']} grid points)"
+        kept = "" if "left_h" not in st else (f", {st['fold_points_cut']} of them where the pattern left above "
+                                              f"{st['left_h']:g} H")
+        return f"{st['centres']} fold points ({st['grid_points']} grid points){kept}"
     return f"{st['centres']} best ball centres ({st['samples']} samples)"
 
 

@@ -1,0 +1,89 @@
+"""The planner's estimate of the pattern's rest (conformill.pattern_rest): the distance
+bound against a plane's exact rest, against brute force, and its edge cases."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import conformill.pattern_rest as pr
+from conformill.pattern_rest import centre_moves, uncut_beyond
+
+R = 4.0
+
+
+def _brute(Q, A, B):
+    """Distance from each point to the nearest segment A -> B (numpy, all pairs)."""
+    v = B - A
+    L2 = (v * v).sum(1)
+    out = []
+    for q in Q:
+        w = q - A
+        t = np.clip((w * v).sum(1) / np.where(L2 > 0, L2, 1.0), 0.0, 1.0)
+        d = w - t[:, None] * v
+        out.append(np.sqrt((d * d).sum(1)).min())
+    return np.array(out)
+
+
+def test_a_pass_over_a_plane_leaves_the_circle_s_rest():
+    # one pass along X over the plane z = 0, tip on the plane: at lateral distance y the
+    # ball leaves sqrt(y^2 + r^2) - r, the exact rest (the bound is exact on a plane)
+    tips = [np.column_stack([np.linspace(-10, 10, 41), np.zeros(41), np.zeros(41)])]
+    A, B = centre_moves(tips, R)
+    np.testing.assert_array_equal(A[:, 2], R)
+    y = np.linspace(0.0, 3.0, 301)
+    Q = np.column_stack([np.zeros_like(y), y, np.zeros_like(y)])
+    rest = np.sqrt(y * y + R * R) - R
+    for depth in (0.0, 0.01, 0.1, 0.5):
+        away = np.abs(rest - depth) > 1e-9
+        got = uncut_beyond(Q, A, B, R, depth)
+        np.testing.assert_array_equal(got[away], rest[away] > depth)
+    # past the pass's ends the distance is to its end point
+    Q2 = np.array([[10.0 + 2.0, 0.0, 0.0], [10.0 + 0.2, 0.0, 0.0]])
+    np.testing.assert_array_equal(uncut_beyond(Q2, A, B, R, 0.01), np.hypot([2.0, 0.2], R) - R > 0.01)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_agrees_with_brute_force(seed):
+    # zigzag rows over a wavy part (moves of mixed length and slope, some long ones across
+    # many cells), points near and far: the grid's pruning loses no move
+    rng = np.random.default_rng(seed)
+    tips = []
+    for k, y in enumerate(np.arange(-8.0, 8.0, 0.7)):
+        x = np.sort(rng.uniform(-10, 10, rng.integers(3, 40)))
+        x = x if k % 2 else x[::-1]
+        tips.append(np.column_stack([x, y + 0.05 * rng.standard_normal(len(x)), np.sin(0.3 * x) + 0.2 * y]))
+    A, B = centre_moves(tips, R)
+    Q = np.column_stack([rng.uniform(-14, 14, 3000), rng.uniform(-12, 12, 3000), rng.uniform(-3, 6, 3000)])
+    d = _brute(Q, A, B)
+    for depth in (0.0, 0.02, 1.5):
+        away = np.abs(d - R - depth) > 1e-9
+        got = uncut_beyond(Q, A, B, R, depth)
+        assert 0 < got.sum() < len(Q)
+        np.testing.assert_array_equal(got[away], (d > R + depth)[away])
+
+
+def test_rows_nan_empty_and_a_coarser_grid(monkeypatch):
+    tips = [np.column_stack([np.linspace(-5, 5, 11), np.zeros(11), np.zeros(11)])]
+    A, B = centre_moves(tips + [np.zeros((1, 3))], R)  # a one-point pass has no move
+    assert len(A) == 10
+    near, far = [0.0, 0.1, 0.0], [0.0, 3.0, 0.0]
+    Q = np.array([[near, near], [near, far], [far, near], [near, [np.nan, 0.0, 0.0]]])
+    np.testing.assert_array_equal(uncut_beyond(Q, A, B, R, 0.01), [False, True, True, True])
+    np.testing.assert_array_equal(uncut_beyond(np.array([near, far]), A, B, R, 0.01), [False, True])
+    # no moves at all: everything is uncut; no points: nothing
+    np.testing.assert_array_equal(uncut_beyond(np.array([near]), *centre_moves([], R), R, 0.01), [True])
+    assert uncut_beyond(np.zeros((0, 3)), A, B, R, 0.01).shape == (0,)
+    # a grid capped at a few cells (large parts) gives the same answers
+    rng = np.random.default_rng(5)
+    P = np.column_stack([rng.uniform(-8, 8, 500), rng.uniform(-6, 6, 500), rng.uniform(-1, 1, 500)])
+    want = uncut_beyond(P, A, B, R, 0.05)
+    monkeypatch.setattr(pr, "_MAX_CELLS", 6)
+    np.testing.assert_array_equal(uncut_beyond(P, A, B, R, 0.05), want)
+
+
+@pytest.mark.parametrize("radius, depth", [(0.0, 0.01), (-1.0, 0.01), (R, -0.01), (R, np.nan), (np.inf, 0.0)])
+def test_bad_values(radius, depth):
+    A, B = centre_moves([np.zeros((2, 3)) + [[0, 0, 0], [1, 0, 0]]], 1.0)
+    with pytest.raises(ValueError, match="radius must be positive"):
+        uncut_beyond(np.zeros((1, 3)), A, B, radius, depth)

@@ -18,8 +18,10 @@ sample's normal. It prints:
   verified as ``bench_raster.py`` does (400k samples, seed 0, limit 1.05 h, reach depth h,
   the reachable judge).
 
-This is a prototype of a filter, not the product: the planner would need its own estimate
-of the pattern's rest (verify's simulation is independent of the planner by design).
+This was the prototype (session 30) of ``plan --pencil-left`` (session 31), which reads the
+same three shadow points but with the planner's own estimate of the pattern's rest
+(:mod:`conformill.pattern_rest`; verify's simulation is independent of the planner by
+design): on igea zigzag both give 161.3 m at 1.036-1.038 h for fold points above 0.5 h.
 
     python benchmarks/bench_pencil_filter.py [MESH] [--pattern zigzag] [--density 30] [--hop 0]
         [--thresholds all 0.5 0.5,0 0.3]

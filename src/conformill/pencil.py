@@ -929,8 +929,8 @@ class BackgroundChains:
             self._go_link.set()
 
     def result(self, wait=None) -> PencilChains | PencilFound:
-        """The chains (or, with ``chain=False``, the centres), once the search is done (``wait(fraction)`` is called every 0.2 s
-        until then); raises what the search raised."""
+        """The chains (or, with ``chain=False``, the centres), once the search is done
+        (``wait(fraction)`` is called every 0.2 s until then); raises what the search raised."""
         while not self._searched.wait(timeout=0.2):
             if wait is not None:
                 wait(self.fraction)

@@ -513,10 +513,12 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
                 cutter = builder.cutter if builder.cutter is not None else BallCutter(mesh.V, mesh.F, r)
                 start = passes[-1][-1, :2] if passes else mesh.V[:, :2].mean(axis=0)
                 if filtered:  # the centres where the pattern left more than pencil_left h
-                    found = background.result(wait=lambda f: say("pencil", 0.8 * f)) if background is not None \
-                        else pencil_search(cutter, *search_args, **search_kw, progress=lambda f: say("pencil", 0.8 * f))
+                    wait = (lambda f: say("pencil", 0.8 * f))
                     if background is not None:
+                        found = background.result(wait=wait)
                         timer.t["pencil_busy"] = background.busy_s
+                    else:
+                        found = pencil_search(cutter, *search_args, **search_kw, progress=wait)
                     with timer("pencil_left"):
                         keep = where_left(found, passes, r, job.pencil_left * h)
                     probed = np.isfinite(found.probes).all(axis=2).all(axis=1)

@@ -163,8 +163,9 @@ def _run_job(args, job, judge_h: float) -> int:
     }
     if job.pencil:  # only then: the default program's bytes stay as they were
         header["pencil"] = (f"samples per mm2 {job.pencil_density:g}" if job.pencil_search == "samples"
-                            else f"folds, grid points per mm2 {job.pencil_density:g}"
-                            + ("" if job.pencil_left is None else f", where the pattern leaves above {job.pencil_left:g} H"))
+                            else f"folds, grid points per mm2 {job.pencil_density:g}")
+        if job.pencil_left is not None:
+            header["pencil"] += f", where the pattern leaves above {job.pencil_left:g} H"
     if job.hop_lift > 0:  # likewise
         header["hop lifted"] = f"runs lifted more than {job.hop_lift:g} mm, rapid {job.rapid:g}"
     with all_or_nothing(args.output, args.report, args.plot, args.html):

@@ -63,7 +63,7 @@ def test_agrees_with_brute_force(seed):
         np.testing.assert_array_equal(got[away], (d > R + depth)[away])
 
 
-def test_rows_nan_empty_and_a_coarser_grid(monkeypatch):
+def test_rows_nan_and_empty():
     tips = [np.column_stack([np.linspace(-5, 5, 11), np.zeros(11), np.zeros(11)])]
     A, B = centre_moves(tips + [np.zeros((1, 3))], R)  # a one-point pass has no move
     assert len(A) == 10
@@ -74,16 +74,40 @@ def test_rows_nan_empty_and_a_coarser_grid(monkeypatch):
     # no moves at all: everything is uncut; no points: nothing
     np.testing.assert_array_equal(uncut_beyond(np.array([near]), *centre_moves([], R), R, 0.01), [True])
     assert uncut_beyond(np.zeros((0, 3)), A, B, R, 0.01).shape == (0,)
-    # a grid capped at a few cells (large parts) gives the same answers
+
+
+@pytest.mark.parametrize("cap", [1, 50])
+def test_a_coarser_grid_gives_the_same_answers(monkeypatch, cap):
+    # the cells grow to keep about _MAX_CELLS of them (large parts): the same answers
     rng = np.random.default_rng(5)
-    P = np.column_stack([rng.uniform(-8, 8, 500), rng.uniform(-6, 6, 500), rng.uniform(-1, 1, 500)])
+    tips = [np.column_stack([rng.uniform(-8, 8, 30), rng.uniform(-6, 6, 30), rng.uniform(-1, 1, 30)])
+            for _ in range(6)]
+    A, B = centre_moves(tips, R)
+    P = np.column_stack([rng.uniform(-10, 10, 2000), rng.uniform(-8, 8, 2000), rng.uniform(-2, 6, 2000)])
     want = uncut_beyond(P, A, B, R, 0.05)
-    monkeypatch.setattr(pr, "_MAX_CELLS", 6)
+    assert 0 < want.sum() < len(P)
+    monkeypatch.setattr(pr, "_MAX_CELLS", cap)
     np.testing.assert_array_equal(uncut_beyond(P, A, B, R, 0.05), want)
+
+
+def test_a_long_diagonal_move_fills_only_the_cells_it_crosses():
+    # a move is walked a cell at a time: a 700 mm diagonal enters about 3 x 1400 cells, not
+    # the 1400^2 of its box; its far end still counts
+    A, B = np.array([[0.0, 0.0, R]]), np.array([[500.0, 500.0, R]])
+    start, item, zlo, zhi = pr._bin(A, B, 0.0, 0.0, 0.5, 1001, 1001)
+    assert len(item) < 4 * 1414 and start[-1] == len(item)
+    Q = np.array([[500.0, 500.0, 0.0], [250.0, 250.0, 0.0], [250.0, 251.0, 0.0]])
+    np.testing.assert_array_equal(uncut_beyond(Q, A, B, R, 0.01), [False, False, True])
 
 
 @pytest.mark.parametrize("radius, depth", [(0.0, 0.01), (-1.0, 0.01), (R, -0.01), (R, np.nan), (np.inf, 0.0)])
 def test_bad_values(radius, depth):
     A, B = centre_moves([np.zeros((2, 3)) + [[0, 0, 0], [1, 0, 0]]], 1.0)
-    with pytest.raises(ValueError, match="radius must be positive"):
+    with pytest.raises(ValueError, match="radius must be finite and positive"):
         uncut_beyond(np.zeros((1, 3)), A, B, radius, depth)
+
+
+def test_moves_that_are_not_finite_are_named():
+    A, B = centre_moves([np.array([[0.0, 0, 0], [1, 0, 0], [np.nan, 0, 0], [3, 0, 0]])], 1.0)
+    with pytest.raises(ValueError, match=r"move ends A must be finite; not at rows \[2\]"):
+        uncut_beyond(np.zeros((1, 3)), A, B, 1.0, 0.01)

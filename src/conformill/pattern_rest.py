@@ -15,8 +15,8 @@ into the swept volume instead, independent of the planner by design; on igea (zi
 centre agreed to a median ratio of 0.999 (5-95 %: 0.966-1.018), and at a depth of 0.5 h
 they disagreed on 113 of 28.6k points (session 30, README "What stands in the way").
 
-The moves are binned on an XY grid of 0.5 mm cells, each move in every cell its XY box
-meets, and each cell keeps its moves' range of centre heights. A point visits the cells
+The moves are binned on an XY grid of 0.5 mm cells, each move in the cells it passes over
+(walked in pieces a cell long), and each cell keeps its moves' range of centre heights. A point visits the cells
 within ``r + depth`` in XY, skips those whose box (XY and heights) lies farther than that,
 and stops at the first move within reach: the centres ride about ``r`` above the part, so
 on gentle ground only the cells within about ``sqrt(2 r depth)`` of the point are read.
@@ -31,7 +31,7 @@ from numba import njit, prange
 
 __all__ = ["centre_moves", "uncut_beyond"]
 
-#: Side of the moves' grid cells (mm), and most cells (the cells grow to fit).
+#: Side of the moves' grid cells (mm), and about the most cells (the cells grow to fit).
 _CELL = 0.5
 _MAX_CELLS = 4_000_000
 
@@ -48,45 +48,54 @@ def centre_moves(passes, radius: float):
     return np.ascontiguousarray(np.vstack(A) + lift), np.ascontiguousarray(np.vstack(B) + lift)
 
 
-@njit(cache=True, nogil=True, inline="always")
-def _cells(A, B, k, x0, y0, cell, ncx, ncy):
-    """Cell ranges ``i0, i1, j0, j1`` (inclusive) that move ``k``'s XY box meets."""
-    i0 = min(max(int(math.floor((min(A[k, 0], B[k, 0]) - x0) / cell)), 0), ncx - 1)
-    i1 = min(max(int(math.floor((max(A[k, 0], B[k, 0]) - x0) / cell)), 0), ncx - 1)
-    j0 = min(max(int(math.floor((min(A[k, 1], B[k, 1]) - y0) / cell)), 0), ncy - 1)
-    j1 = min(max(int(math.floor((max(A[k, 1], B[k, 1]) - y0) / cell)), 0), ncy - 1)
-    return i0, i1, j0, j1
-
-
 @njit(cache=True, nogil=True)
 def _bin(A, B, x0, y0, cell, ncx, ncy):
-    """CSR lists (``start``, ``item``) of the moves whose XY box meets each cell, and each
-    cell's lowest and highest centre height over those moves."""
+    """CSR lists (``start``, ``item``) of the moves that pass over each cell, and each
+    cell's lowest and highest centre height over those moves. A move is walked in pieces at
+    most a cell long in XY; each piece is entered in the cells its XY box meets (a move
+    once per cell), with the piece's heights: the point of a move nearest any other lies in
+    a piece, over a cell the move is entered in, within that cell's height range."""
     m = A.shape[0]
     nc = ncx * ncy
     start = np.zeros(nc + 1, dtype=np.int64)
     zlo = np.full(nc, np.inf)
     zhi = np.full(nc, -np.inf)
-    for k in range(m):
-        i0, i1, j0, j1 = _cells(A, B, k, x0, y0, cell, ncx, ncy)
-        lo = min(A[k, 2], B[k, 2])
-        hi = max(A[k, 2], B[k, 2])
-        for j in range(j0, j1 + 1):
-            for i in range(i0, i1 + 1):
-                c = j * ncx + i
-                start[c + 1] += 1
-                zlo[c] = min(zlo[c], lo)
-                zhi[c] = max(zhi[c], hi)
-    for c in range(nc):
-        start[c + 1] += start[c]
-    item = np.empty(start[nc], dtype=np.int32)
-    fill = start[:-1].copy()
-    for k in range(m):
-        i0, i1, j0, j1 = _cells(A, B, k, x0, y0, cell, ncx, ncy)
-        for j in range(j0, j1 + 1):
-            for i in range(i0, i1 + 1):
-                item[fill[j * ncx + i]] = k
-                fill[j * ncx + i] += 1
+    last = np.full(nc, -1, dtype=np.int64)
+    fill = np.zeros(0, dtype=np.int64)
+    item = np.zeros(0, dtype=np.int32)
+    for walk in range(2):  # 0: count, 1: fill
+        if walk == 1:
+            for c in range(nc):
+                start[c + 1] += start[c]
+            item = np.empty(start[nc], dtype=np.int32)
+            fill = start[:-1].copy()
+            last[:] = -1
+        for k in range(m):
+            ax, ay, az = A[k, 0], A[k, 1], A[k, 2]
+            vx, vy, vz = B[k, 0] - ax, B[k, 1] - ay, B[k, 2] - az
+            n = max(int(math.ceil(math.sqrt(vx * vx + vy * vy) / cell)), 1)
+            for s in range(n):
+                t0, t1 = s / n, (s + 1) / n
+                px, py, pz = ax + t0 * vx, ay + t0 * vy, az + t0 * vz
+                qx, qy, qz = ax + t1 * vx, ay + t1 * vy, az + t1 * vz
+                i0 = min(max(int(math.floor((min(px, qx) - x0) / cell)), 0), ncx - 1)
+                i1 = min(max(int(math.floor((max(px, qx) - x0) / cell)), 0), ncx - 1)
+                j0 = min(max(int(math.floor((min(py, qy) - y0) / cell)), 0), ncy - 1)
+                j1 = min(max(int(math.floor((max(py, qy) - y0) / cell)), 0), ncy - 1)
+                lo, hi = min(pz, qz), max(pz, qz)
+                for j in range(j0, j1 + 1):
+                    for i in range(i0, i1 + 1):
+                        c = j * ncx + i
+                        if walk == 0:
+                            zlo[c] = min(zlo[c], lo)
+                            zhi[c] = max(zhi[c], hi)
+                        if last[c] != k:
+                            last[c] = k
+                            if walk == 0:
+                                start[c + 1] += 1
+                            else:
+                                item[fill[c]] = k
+                                fill[c] += 1
     return start, item, zlo, zhi
 
 
@@ -171,7 +180,11 @@ def uncut_beyond(points, A, B, radius: float, depth: float) -> np.ndarray:
     B = np.ascontiguousarray(B, dtype=np.float64).reshape(-1, 3)
     reach = float(radius) + float(depth)
     if not (np.isfinite(reach) and radius > 0 and depth >= 0):
-        raise ValueError(f"radius must be positive and depth >= 0, got {radius}, {depth}")
+        raise ValueError(f"radius must be finite and positive and depth finite and >= 0, got {radius}, {depth}")
+    for name, X in (("A", A), ("B", B)):
+        if not np.isfinite(X).all():
+            bad = np.flatnonzero(~np.isfinite(X).all(axis=1))
+            raise ValueError(f"move ends {name} must be finite; not at rows {bad[:5].tolist()}")
     if len(A) == 0 or len(Q) == 0:
         return np.ones(len(Q), dtype=bool)
     lo = np.minimum(A[:, :2].min(axis=0), B[:, :2].min(axis=0))

@@ -708,16 +708,18 @@ def pencil_chains(cutter, V, F, h: float, *, search: str = "samples", density: f
     if int(min_chain) < 1:
         raise PlanningError(f"pencil: min_chain must be at least 1, got {min_chain}")
     found = pencil_search(cutter, V, F, h, search=search, density=density, low=low, high=high, seed=seed,
-                          progress=progress, cancelled=cancelled)
+                          progress=progress, cancelled=cancelled, probes=False)
     if found is None or (cancelled is not None and cancelled()):
         return None
     return chains_of(cutter, found, min_chain, settle_tol)
 
 
 def pencil_search(cutter, V, F, h: float, *, search: str = "samples", density: float = 30.0, low: float = 0.15,
-                  high: float = 1.0, seed: int = 0, progress=None, cancelled=None) -> PencilFound | None:
+                  high: float = 1.0, seed: int = 0, progress=None, cancelled=None,
+                  probes: bool = True) -> PencilFound | None:
     """The search of :func:`pencil_passes`: the centres, not yet chained (parameters and
-    ``cancelled`` as for :func:`pencil_chains`).
+    ``cancelled`` as for :func:`pencil_chains`; ``probes=False``: the fold points' shadow
+    probes are not read, all NaN, as when they will not be filtered).
 
     Returns
     -------
@@ -748,12 +750,13 @@ def pencil_search(cutter, V, F, h: float, *, search: str = "samples", density: f
         stats = {"search": "folds", **fp.stats, "fold_points": int(len(fp.centres)), "centres": int(kept.sum()),
                  "steep_samples": n_steep, "steep_centres": int(len(steep)),
                  "density_per_mm2": float(density), "low": float(low), "high": float(high)}
-        probes = shadow_probes(cutter, fp.contact_a[kept], fp.contact_b[kept], _SHADOW_AT)
-        probes = np.concatenate([probes, np.full((len(steep), len(_SHADOW_AT), 3), np.nan)])
+        shadows = shadow_probes(cutter, fp.contact_a[kept], fp.contact_b[kept], _SHADOW_AT) if probes \
+            else np.full((int(kept.sum()), len(_SHADOW_AT), 3), np.nan)
+        shadows = np.concatenate([shadows, np.full((len(steep), len(_SHADOW_AT), 3), np.nan)])
         say(0.8)
         if stop():
             return None
-        return PencilFound(centres=np.vstack([fp.centres[kept], steep]), probes=probes, spacing=spacing,
+        return PencilFound(centres=np.vstack([fp.centres[kept], steep]), probes=shadows, spacing=spacing,
                            stats=stats)
     if density * area > _MAX_SAMPLES:
         log.warning("pencil: %.0f mm^2 at %.3g samples per mm^2 would be %.3gM samples; using %.3g per mm^2 "

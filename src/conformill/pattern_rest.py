@@ -16,10 +16,12 @@ centre agreed to a median ratio of 0.999 (5-95 %: 0.966-1.018), and at a depth o
 they disagreed on 113 of 28.6k points (session 30, README "What stands in the way").
 
 The moves are binned on an XY grid of 0.5 mm cells, each move in the cells it passes over
-(walked in pieces a cell long), and each cell keeps its moves' range of centre heights. A point visits the cells
-within ``r + depth`` in XY, skips those whose box (XY and heights) lies farther than that,
-and stops at the first move within reach: the centres ride about ``r`` above the part, so
-on gentle ground only the cells within about ``sqrt(2 r depth)`` of the point are read.
+(walked in pieces a cell long), and each cell keeps its moves' range of centre heights. A
+point visits the cells within ``r + depth`` in XY, skips those whose box (XY and heights)
+lies farther than that, and stops at the first move within reach: the centres ride about
+``r`` above the part, so on gentle ground only the cells within about ``sqrt(2 r depth)``
+of the point are read. On igea (zigzag, 460k moves, 176k probes of 58.8k fold points) the
+test takes about 0.3 s on two cores.
 """
 
 from __future__ import annotations

@@ -31,6 +31,8 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from conformill.geometry.closest import segment_d2
+
 __all__ = ["centre_moves", "uncut_beyond"]
 
 #: Side of the moves' grid cells (mm), and about the most cells (the cells grow to fit).
@@ -125,15 +127,7 @@ def _reached(qx, qy, qz, A, B, reach, x0, y0, cell, ncx, ncy, start, item, zlo, 
                 continue
             for e in range(start[c], start[c + 1]):
                 k = item[e]
-                ax, ay, az = A[k, 0], A[k, 1], A[k, 2]
-                vx, vy, vz = B[k, 0] - ax, B[k, 1] - ay, B[k, 2] - az
-                wx, wy, wz = qx - ax, qy - ay, qz - az
-                L2 = vx * vx + vy * vy + vz * vz
-                t = 0.0
-                if L2 > 0.0:
-                    t = min(max((wx * vx + wy * vy + wz * vz) / L2, 0.0), 1.0)
-                ex, ey, ez = wx - t * vx, wy - t * vy, wz - t * vz
-                if ex * ex + ey * ey + ez * ez <= reach2:
+                if segment_d2(qx, qy, qz, A[k, 0], A[k, 1], A[k, 2], B[k, 0], B[k, 1], B[k, 2]) <= reach2:
                     return True
     return False
 

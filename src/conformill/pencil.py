@@ -678,6 +678,11 @@ class PencilFound:
     spacing: float
     stats: dict = field(default_factory=dict)
 
+    @property
+    def probed(self) -> np.ndarray:
+        """``(k,)`` bool: the centres with probes (the others are always cut)."""
+        return np.isfinite(self.probes).all(axis=2).all(axis=1)
+
 
 def _check_search(h, density, low, high, search):
     for name, v in (("scallop", h), ("pencil density", density)):
@@ -791,7 +796,7 @@ def where_left(found: PencilFound, passes, radius: float, depth: float) -> np.nd
     and those without probes. Returns ``(k,)`` bool."""
     from conformill.pattern_rest import centre_moves, uncut_beyond
 
-    probed = np.isfinite(found.probes).all(axis=2).all(axis=1)
+    probed = found.probed
     keep = ~probed
     if probed.any():
         A, B = centre_moves(passes, radius)

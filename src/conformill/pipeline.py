@@ -521,9 +521,8 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
                         found = pencil_search(cutter, *search_args, **search_kw, progress=wait)
                     with timer("pencil_left"):
                         keep = where_left(found, passes, r, job.pencil_left * h)
-                    probed = np.isfinite(found.probes).all(axis=2).all(axis=1)
                     found = replace(found, stats={**found.stats, "left_h": float(job.pencil_left),
-                                                  "fold_points_cut": int(np.count_nonzero(keep & probed))})
+                                                  "fold_points_cut": int(np.count_nonzero(keep & found.probed))})
                     found = chains_of(cutter, found, 1, job.settle * h, keep)
                     pencil = link_chains(cutter, found, e, link_max, start)
                 elif background is not None:

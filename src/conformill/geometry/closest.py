@@ -1,11 +1,12 @@
-"""Closest point of a triangle to a point (compiled, for the cutter and the verifier)."""
+"""Closest points of a triangle and a segment to a point (compiled, for the cutter, the
+verifier, the path families and the pattern's rest)."""
 
 from __future__ import annotations
 
 from numba import njit
 from numba import types as _nt
 
-__all__ = ["closest_on_triangle"]
+__all__ = ["closest_on_triangle", "segment_d2"]
 
 
 #: Compiled once and called (not inlined by numba into each caller: the cutter's settle
@@ -54,3 +55,18 @@ def closest_on_triangle(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz):
     v = vb * den
     w = vc * den
     return ax + abx * v + acx * w, ay + aby * v + acy * w, az + abz * v + acz * w
+
+
+@njit(cache=True, nogil=True, inline="always")
+def segment_d2(px, py, pz, ax, ay, az, bx, by, bz):
+    """Squared distance from ``p`` to the segment ``ab`` (a segment shorter than 1e-150
+    counts as its end ``a``). Inlined into its callers: it is a few operations, called in
+    their innermost loops."""
+    ux, uy, uz = bx - ax, by - ay, bz - az
+    wx, wy, wz = px - ax, py - ay, pz - az
+    uu = ux * ux + uy * uy + uz * uz
+    t = 0.0
+    if uu > 1e-300:
+        t = min(max((wx * ux + wy * uy + wz * uz) / uu, 0.0), 1.0)
+    dx, dy, dz = wx - t * ux, wy - t * uy, wz - t * uz
+    return dx * dx + dy * dy + dz * dz

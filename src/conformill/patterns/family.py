@@ -22,22 +22,10 @@ from scipy.ndimage import minimum_filter1d
 from scipy.spatial import cKDTree
 
 from conformill.errors import PlanningError
+from conformill.geometry.closest import segment_d2
 from conformill.planning.steps import side_interval
 
 log = logging.getLogger(__name__)
-
-
-@njit(cache=True, nogil=True)
-def _seg_d2(px, py, pz, Q, a, b):
-    ax, ay, az = Q[a, 0], Q[a, 1], Q[a, 2]
-    ux, uy, uz = Q[b, 0] - ax, Q[b, 1] - ay, Q[b, 2] - az
-    wx, wy, wz = px - ax, py - ay, pz - az
-    uu = ux * ux + uy * uy + uz * uz
-    t = 0.0
-    if uu > 1e-300:
-        t = min(max((wx * ux + wy * uy + wz * uz) / uu, 0.0), 1.0)
-    dx, dy, dz = wx - t * ux, wy - t * uy, wz - t * uz
-    return dx * dx + dy * dy + dz * dz
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -105,7 +93,7 @@ def _walk_distance(P, Q, closed, window):
                 b = _wrap(b, q)
             elif a < 0 or b >= q:
                 continue
-            d = _seg_d2(px, py, pz, Q, a, b)
+            d = segment_d2(px, py, pz, Q[a, 0], Q[a, 1], Q[a, 2], Q[b, 0], Q[b, 1], Q[b, 2])
             if d < dmin:
                 dmin = d
         out[i] = np.sqrt(dmin)

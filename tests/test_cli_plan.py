@@ -104,6 +104,9 @@ def test_plan_programs_run_in_linuxcnc(part, tmp_path, pattern):
     (["--tool-radius", "4", "--scallop", "0.1", "--pencil", "--pencil-search", "folds", "--pencil-left", "-1"], 3,
      "pencil-left"),
     (["--tool-radius", "4", "--scallop", "0.1", "--pencil", "--pencil-left", "0.5"], 3, "pencil-left"),
+    (["--tool-radius", "4", "--scallop", "0.1", "--blend", "-0.01"], 3, "blend"),
+    (["--tool-radius", "4", "--scallop", "0.1", "--blend", "nan"], 3, "blend"),
+    (["--tool-radius", "4", "--scallop", "0.1", "--blend", "1e-8"], 3, "blend"),
     # a millimetre part read as metres: refused at once, not planned until memory runs out
     (["--tool-radius", "4", "--scallop", "0.01", "--scale", "10000"], 3, "--scale"),
 ])
@@ -184,3 +187,56 @@ def test_pencil_option_reaches_the_report_the_header_and_the_summary(part, tmp_p
     assert main(["plan", str(part), "--pattern", "contour", "--tool-radius", "4", "--scallop", "0.5",
                  "-o", str(plain), "-q"]) == 0
     assert "pencil" not in plain.read_text()
+
+
+def test_blend_path_control(part, tmp_path, capsys):
+    """The program asks the controller for its path tolerance: G64 P min(e/2, h/4) Q0 by
+    default, the given P, G61 for 0, nothing with off; the moves are the same bytes."""
+    def run(*extra, h="0.3", e="0.01"):
+        out = tmp_path / "p.nc"
+        rc = main(["plan", str(part), "--pattern", "zigzag", "--tool-radius", "4", "--scallop", h, "--tolerance", e,
+                   "-o", str(out), "--report", str(tmp_path / "r.json"), *extra])
+        text = capsys.readouterr().out
+        assert rc == 0, text
+        return out.read_text().splitlines(), json.loads((tmp_path / "r.json").read_text()), text
+
+    def moves(lines):
+        return [ln for ln in lines if ln.startswith(("G0", "G1"))]
+
+    base, rep, summary = run()
+    assert "G64 P0.005 Q0" in base and rep["job"]["blend"] == 0.005  # e/2 < h/4
+    assert base[base.index("G40 G49 G80") + 1] == "G64 P0.005 Q0"
+    assert "(param path control: G64 P0.005 Q0: corners rounded by at most 0.005 mm" in "\n".join(base)
+    assert "lines, G64 P0.005 Q0" in summary
+    lines, rep, _ = run(h="0.008", e="0.01")  # h/4 < e/2
+    assert "G64 P0.002 Q0" in lines and rep["job"]["blend"] == 0.002
+    lines, rep, summary = run("--blend", "0.02")
+    assert "G64 P0.02 Q0" in lines and rep["job"]["blend"] == 0.02 and moves(lines) == moves(base)
+    lines, rep, summary = run("--blend", "0")
+    assert "G61" in lines and not any(ln.startswith("G64") for ln in lines) and "lines, G61" in summary
+    assert moves(lines) == moves(base)
+    lines, rep, summary = run("--blend", "off")
+    assert not any(ln.startswith(("G64", "G61")) for ln in lines) and rep["job"]["blend"] == "off"
+    assert "no path control" in summary and "none written" in "\n".join(lines) and moves(lines) == moves(base)
+    assert len(lines) == len(base) - 1
+
+
+def test_blend_that_is_not_a_number(part, tmp_path, capsys):
+    out = tmp_path / "p.nc"
+    rc = main(["plan", str(part), "--tool-radius", "4", "--scallop", "0.1", "-o", str(out), "--blend", "fine"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "Traceback" not in err and not out.exists()
+    assert err.strip().splitlines()[-1] == ("conformill plan: error: argument --blend: expected a number (mm) or off, "
+                                            "got 'fine'")
+
+
+def test_job_blend_is_checked():
+    from conformill.errors import PlanningError
+    from conformill.pipeline import Job, check_job
+
+    assert Job(scallop=0.01, tolerance=0.01).blend_tolerance == 0.0025
+    assert Job(scallop=0.1, tolerance=0.01).blend_tolerance == 0.005
+    assert Job(blend="off").blend_tolerance is None and Job(blend=0).blend_tolerance == 0.0
+    for bad in ("on", -1.0, float("inf"), float("nan"), 1e-9):
+        with pytest.raises(PlanningError, match="blend"):
+            check_job(Job(blend=bad))

@@ -223,3 +223,50 @@ def test_compiled_formatter_matches_reference():
     ref = "\n".join(" ".join(["G1"] + [ax + _num(int(v)) for ax, v, on in zip("XYZ", q, c) if on])
                     for q, c in zip(Q, C))
     assert _format_moves(Q, C) == ref
+
+
+# -- path control (blend) -------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("blend, block", [
+    (None, None), (0, "G61"), (0.0, "G61"), (0.0025, "G64 P0.0025 Q0"), (0.005, "G64 P0.005 Q0"),
+    (1, "G64 P1 Q0"), (2.5, "G64 P2.5 Q0"), (1e-6, "G64 P0.000001 Q0"), (0.00025, "G64 P0.00025 Q0"),
+    (np.float32(0.5), "G64 P0.5 Q0"),
+])
+def test_path_control_block(blend, block):
+    from conformill.output.gcode import path_control
+
+    assert path_control(blend) == block
+
+
+@pytest.mark.parametrize("blend", [-1.0, -1e-9, float("nan"), float("inf"), "x", [0.1], 1e-7, 4e-7])
+def test_path_control_refuses_bad_values(blend):
+    from conformill.output.gcode import path_control
+
+    with pytest.raises(PlanningError, match="blend"):
+        path_control(blend)
+    with pytest.raises(PlanningError, match="blend"):
+        format_gcode(_toolpath(1, 5), feed=500, blend=blend)
+
+
+@pytest.mark.parametrize("blend, block", [(0.0025, "G64 P0.0025 Q0"), (0, "G61")])
+def test_path_control_sits_in_the_preamble_and_changes_nothing_else(tmp_path, blend, block):
+    tp = _toolpath(3, 20)
+    plain = format_gcode(tp, feed=900, plunge_feed=300, spindle=12000, header={"a": 1})
+    text = format_gcode(tp, feed=900, plunge_feed=300, spindle=12000, header={"a": 1}, blend=blend)
+    lines, base = text.splitlines(), plain.splitlines()
+    i = lines.index("G40 G49 G80")
+    assert lines[i + 1] == block and lines[i + 2].startswith("M3 S12000")  # before the spindle and any motion
+    assert lines[:i + 1] + lines[i + 2:] == base
+    assert not any(ln.startswith(("G64", "G61")) for ln in base)
+    # the statistics count the extra line and nothing else
+    a = write_gcode(tmp_path / "a.nc", tp, feed=900, blend=blend)
+    b = write_gcode(tmp_path / "b.nc", tp, feed=900)
+    assert a["n_lines"] == b["n_lines"] + 1 and a["bytes"] == b["bytes"] + len(block) + 1
+    assert {k: v for k, v in a.items() if k not in ("n_lines", "bytes")} == \
+        {k: v for k, v in b.items() if k not in ("n_lines", "bytes")}
+    # the reader takes the block as a mode (the blending is not simulated): the same points
+    from conformill.verify.gcode import read_gcode
+
+    pa, pb = read_gcode(tmp_path / "a.nc"), read_gcode(tmp_path / "b.nc")
+    assert np.array_equal(pa.points, pb.points) and np.array_equal(pa.motion, pb.motion)

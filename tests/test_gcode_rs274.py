@@ -138,3 +138,22 @@ def test_odd_header_values(tmp_path):
     for active in ("MESSAGE", "LOG", "PROBE", "PRINT", "DEBUG"):
         assert not [ln for ln in actions if active in ln]
     assert not (tmp_path / "probe.txt").exists() and not (tmp_path / "log.txt").exists()
+
+
+@pytest.mark.parametrize("blend, mode", [
+    (0.0025, r"SET_MOTION_CONTROL_MODE\(CANON_CONTINUOUS, 0\.002500\)"),
+    (0.00025, r"SET_MOTION_CONTROL_MODE\(CANON_CONTINUOUS, 0\.000250\)"),
+    (0, r"SET_MOTION_CONTROL_MODE\(CANON_EXACT_PATH\)"),
+])
+def test_path_control_reaches_the_interpreter(tmp_path, blend, mode):
+    tp = _toolpath(2, 30)
+    write_gcode(tmp_path / "blend.nc", tp, feed=1200, blend=blend)
+    rc, out, canon = run_rs274(None, tmp_path, "blend")
+    _assert_clean(rc, out)
+    assert re.search(mode, canon)
+    if blend:  # Q0: LinuxCNC's naive-CAM detector is off, so no move is merged away
+        assert re.search(r"SET_NAIVECAM_TOLERANCE\(0\.0+\)", canon)
+    # set before the first motion
+    first_move = min(canon.index("STRAIGHT_TRAVERSE"), canon.index("STRAIGHT_FEED"))
+    assert re.search(mode, canon[:first_move])
+    _check_against_toolpath(canon, tp)

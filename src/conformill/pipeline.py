@@ -18,6 +18,7 @@ from conformill import __version__
 from conformill.errors import PlanningError
 from conformill.geometry.surface import DomainSurface
 from conformill.patterns.family import Planner
+from conformill.output.gcode import path_control
 from conformill.passes import PassBuilder, threads_can_overlap
 from conformill.planning.steps import check_params, side_interval
 from conformill.types import PENCIL_SEARCHES, Mesh, PathParams, PlanResult, ToolPath
@@ -127,6 +128,14 @@ class Job:
         (README, "Hops over lifted runs", session 27).
     rapid : float
         The machine's rapid rate (mm/min) the hops are timed at.
+    blend : float, "off" or None
+        The path control the program asks of the controller
+        (:func:`conformill.output.gcode.path_control`): stay within this many mm of the
+        programmed path when rounding its corners (``G64 P<blend> Q0``); 0: exact path
+        (``G61``); "off": no path-control block, the machine's own mode (LinuxCNC's ``G64``
+        without ``P`` rounds corners by any amount). None (default): :attr:`blend_tolerance`'s
+        ``min(e / 2, h / 4)``, the budgets the planner keeps its own moves to (e/2 into
+        the part, h/4 above the surface on concave ground).
     """
 
     pattern: str = "spiral"
@@ -153,11 +162,22 @@ class Job:
     pencil_left: float | None = None
     hop_lift: float = 0.0
     rapid: float = 5000.0
+    blend: float | str | None = None
 
     @property
     def plunge_rate(self) -> float:
         """The plunge feed (mm/min): ``plunge_feed``, or a third of ``feed`` when unset."""
         return self.plunge_feed or self.feed / 3
+
+    @property
+    def blend_tolerance(self) -> float | None:
+        """The path-control tolerance written (mm): ``blend``, ``min(e / 2, h / 4)`` when
+        unset, None when "off" (no path-control block)."""
+        if isinstance(self.blend, str) and self.blend == "off":
+            return None
+        if self.blend is None:
+            return min(0.5 * self.tolerance, 0.25 * self.scallop)
+        return float(self.blend)
 
 
 class _Timer:
@@ -207,6 +227,12 @@ def check_job(job: Job) -> None:
                                 "folds)")
     if not (np.isfinite(job.hop_lift) and job.hop_lift >= 0):
         raise PlanningError(f"hop-lifted must be a number >= 0 (mm; 0: off), got {job.hop_lift}")
+    if isinstance(job.blend, str) and job.blend != "off":
+        raise PlanningError(f"blend must be a number >= 0 (mm) or 'off', got {job.blend!r}")
+    try:
+        path_control(job.blend_tolerance)
+    except PlanningError as exc:
+        raise PlanningError(str(exc).replace("G-code: ", "", 1)) from None
 
 
 def face_normals(V: np.ndarray, F: np.ndarray):
@@ -558,7 +584,8 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
                 "forward_chord_tolerance": e_fwd, "forward_chord_tolerance_convex": e_cvx,
                 "concave_steps": job.concave_steps, "spacing": job.spacing, "settle": job.settle,
                 "fit": job.fit, "pencil": job.pencil, "pencil_density": job.pencil_density,
-                "pencil_search": job.pencil_search, "pencil_left": job.pencil_left},
+                "pencil_search": job.pencil_search, "pencil_left": job.pencil_left,
+                "blend": "off" if job.blend_tolerance is None else job.blend_tolerance},
         "orientation": orient_info,
         "parameterization": {"boundary": param.kind, "domain": param.domain, "corners": param.corners,
                              "solver": param.solver, "residual": param.residual, "fallbacks": param.fallbacks,

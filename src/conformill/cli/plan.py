@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import sys
 import time
 
@@ -69,6 +70,12 @@ def add_arguments(p) -> None:
                         "those regions (0: off, default; see README)")
     p.add_argument("--rapid", type=float, default=5000.0, metavar="F",
                    help="the machine's rapid rate, mm/min, for deciding hops (5000)")
+    p.add_argument("--blend", type=_blend, default=None, metavar="P|off",
+                   help="path control written for the controller: round the corners of the path by at most P mm "
+                        "(G64 P<P> Q0: LinuxCNC's G64 without P rounds them by any amount, and Q0 keeps every "
+                        "point: no merging of nearly collinear moves); 0: exact path (G61); off: none written, the "
+                        "machine's own mode. Default: the smaller of E/2 and H/4, the budgets the planner keeps its "
+                        "own moves to. Not simulated by --verify")
     p.add_argument("--max-step", type=float, default=10.0, metavar="L", help="longest forward step, mm (10)")
     p.add_argument("--threads", type=int, default=None, metavar="N",
                    help="threads for parallel stages (default all; with 1 the cutter runs after the pattern stage, "
@@ -85,6 +92,16 @@ def add_arguments(p) -> None:
                    help="scallop height --verify judges against, mm (default: --scallop); lets a program "
                         "planned with a margin (a smaller --scallop) be checked against the specified height; "
                         "implies --verify")
+
+
+def _blend(text: str):
+    """``--blend``: "off" or a number (argparse reports anything else, exit 2)."""
+    if text.strip().lower() == "off":
+        return "off"
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number (mm) or off, got {text!r}") from None
 
 
 def _corners(text):
@@ -115,7 +132,7 @@ def run(args) -> int:
               weights=args.weights, corners=_corners(args.corners), max_step=args.max_step, spindle=args.spindle,
               concave_steps=args.concave_steps, spacing=args.spacing, settle=args.settle, fit=args.fit,
               pencil=args.pencil, pencil_density=args.pencil_density, hop_lift=args.hop_lifted,
-              rapid=args.rapid, pencil_left=args.pencil_left,
+              rapid=args.rapid, pencil_left=args.pencil_left, blend=args.blend,
               **({} if args.pencil_search is None else {"pencil_search": args.pencil_search}))
     from conformill.pipeline import check_job
 
@@ -161,6 +178,7 @@ def _run_job(args, job, judge_h: float) -> int:
         "scale": args.scale, "orient": job.orient, "weights": job.weights, "concave steps": job.concave_steps,
         "spacing": job.spacing, "settle": job.settle, "fit": job.fit,
         "programmed point": "tool tip", "units": "mm",
+        "path control": _control(job.blend_tolerance)[1],
     }
     if job.pencil:  # only then: the default program's bytes stay as they were
         header["pencil"] = (f"samples per mm2 {job.pencil_density:g}" if job.pencil_search == "samples"
@@ -172,7 +190,7 @@ def _run_job(args, job, judge_h: float) -> int:
     with all_or_nothing(args.output, args.report, args.plot, args.html):
         t = time.perf_counter()
         stats = write_gcode(args.output, result.toolpath, feed=job.feed, plunge_feed=job.plunge_rate,
-                            spindle=job.spindle, header=header)
+                            spindle=job.spindle, header=header, blend=job.blend_tolerance)
         report["timings_s"]["gcode"] = time.perf_counter() - t
         report["program"] = stats
         if args.plot:
@@ -272,6 +290,19 @@ def _pencil_source(st: dict) -> str:
     return f"{st['centres']} best ball centres ({st['samples']} samples)"
 
 
+def _control(blend) -> tuple[str, str]:
+    """The path-control block for the resolved ``blend`` (``Job.blend_tolerance``; None:
+    none written) and the header's account of it."""
+    from conformill.output.gcode import path_control
+
+    if blend is None:
+        return "no path control", "none written: the machine's own mode"
+    block = path_control(blend)
+    if blend == 0:
+        return block, f"{block}: exact path"
+    return block, f"{block}: corners rounded by at most {blend:g} mm, moves not merged"
+
+
 def _summary(rep: dict, out: str) -> None:
     pr, pa, q = rep["program"], rep["paths"], rep["parameterization"]["quality"]
     lines = [
@@ -282,7 +313,8 @@ def _summary(rep: dict, out: str) -> None:
         f"  side step         flat {rep['side_step']['flat_interval_mm']:.3f} mm, realised mean "
         f"{(rep['side_step']['realised_mm']['mean'] or 0):.3f} mm",
         f"  program           feed {pr['feed_length_mm'] / 1000:.2f} m, rapid {pr['rapid_length_mm'] / 1000:.2f} m, "
-        f"{pr['machining_time_min']:.1f} min at feed, {pr['n_lines']} lines",
+        f"{pr['machining_time_min']:.1f} min at feed, {pr['n_lines']} lines, "
+        f"{_control(None if rep['job']['blend'] == 'off' else rep['job']['blend'])[0]}",
         *([f"  pencil            {rep['pencil']['passes']} pass(es), {rep['pencil']['cl_points']} CL points, "
            f"{rep['pencil']['feed_mm'] / 1000:.2f} m from {_pencil_source(rep['pencil'])}"] if rep.get("pencil") else []),
         f"  reachability      undercut {100 * rep['reachability']['undercut_share']:.2f}%, concave below R "

@@ -7,6 +7,7 @@ in ``tests/test_gcode_rs274.py``), with no ``%`` delimiters, and it looks like t
     (param tool_radius: 4)              one comment per header entry
     G21 G90 G17 G94                     mm, absolute, XY plane, feed per minute
     G40 G49 G80                         no cutter compensation, no tool length offset, no cycle
+    G64 P0.0025 Q0                      path control, only when ``blend`` is given (below)
     M3 S12000                           only when a spindle speed is given
     G0 Z25.0000
     G0 X.. Y..                          for every pass: rapid at safe Z above its start,
@@ -23,6 +24,15 @@ the part above the next pass's start, from which it plunges.
 Coordinates have 4 decimals (0.1 micron); ``-0.0000`` is written ``0.0000``; a cut move
 whose rounded coordinates equal the current position is dropped, and unchanged axis words
 are left out (they are modal). The output is a deterministic function of the inputs.
+
+Path control (``blend``): LinuxCNC rounds the corners of a path of short moves ("path
+blending"); ``G64`` without ``P``, the mode a machine may start in, keeps the speed *no
+matter how far from the programmed path*. ``blend = P > 0`` writes ``G64 P<P> Q0``: the
+tool stays within P mm of the programmed path, and ``Q0`` turns off the naive-CAM
+detector, which would otherwise merge moves that are within P of collinear and so drop
+points the planner placed on purpose. ``blend = 0`` writes ``G61`` (exact path: every
+point is reached, at the cost of slowing down at corners); ``None`` writes neither (the
+machine's own mode applies).
 
 Header comments never start with a word that LinuxCNC treats as an active comment
 (``MSG``, ``DEBUG``, ``PRINT``, ``LOG...``, ``PROBEOPEN``, ``PY``...): each is written as
@@ -42,7 +52,7 @@ from numba import njit
 from conformill.errors import OutputError, PlanningError
 from conformill.output.atomic import atomic_path
 
-__all__ = ["format_gcode", "write_gcode"]
+__all__ = ["format_gcode", "path_control", "write_gcode"]
 
 #: Decimal places of coordinates (mm).
 DECIMALS = 4
@@ -52,7 +62,7 @@ _MAX_COMMENT = 200
 
 
 def format_gcode(toolpath, *, feed: float, plunge_feed: float | None = None,
-                 spindle: float | None = None, header: dict | None = None) -> str:
+                 spindle: float | None = None, header: dict | None = None, blend: float | None = None) -> str:
     """The RS274NGC program of a tool path, as text (pure; see the module docstring).
 
     Parameters
@@ -68,6 +78,9 @@ def format_gcode(toolpath, *, feed: float, plunge_feed: float | None = None,
         Spindle speed (rpm) for ``M3 S..``; no ``M3`` when None.
     header : dict, optional
         Parameters written as comments, in the given order.
+    blend : float, optional
+        Path control (mm, see the module docstring): ``G64 P<blend> Q0`` when positive,
+        ``G61`` when 0, no line when None.
 
     Returns
     -------
@@ -78,14 +91,15 @@ def format_gcode(toolpath, *, feed: float, plunge_feed: float | None = None,
     ------
     PlanningError
         No passes, a pass that is not ``(k, 3)`` finite with ``k >= 1``, a point above
-        ``safe_z``, a non-finite ``safe_z``, or a feed/speed that is not positive.
+        ``safe_z``, a non-finite ``safe_z``, a feed/speed that is not positive, or a
+        ``blend`` that is negative, not finite or below 1e-6 mm.
     """
-    text, _ = _program(toolpath, feed, plunge_feed, spindle, header)
+    text, _ = _program(toolpath, feed, plunge_feed, spindle, header, blend)
     return text
 
 
 def write_gcode(path, toolpath, *, feed: float, plunge_feed: float | None = None,
-                spindle: float | None = None, header: dict | None = None) -> dict:
+                spindle: float | None = None, header: dict | None = None, blend: float | None = None) -> dict:
     """Write the program of :func:`format_gcode` to ``path`` atomically; return its statistics.
 
     Returns
@@ -104,7 +118,7 @@ def write_gcode(path, toolpath, *, feed: float, plunge_feed: float | None = None
     OutputError
         The folder does not exist or the file cannot be written (no file is left behind).
     """
-    text, stats = _program(toolpath, feed, plunge_feed, spindle, header)
+    text, stats = _program(toolpath, feed, plunge_feed, spindle, header, blend)
     data = text.encode("ascii")
     with atomic_path(path) as tmp:
         try:
@@ -127,6 +141,32 @@ def _positive(name, value):
     if not (math.isfinite(v) and v > 0):
         raise PlanningError(f"G-code: {name} must be positive and finite, got {value!r}")
     return v
+
+
+def path_control(blend) -> str | None:
+    """The path-control block for ``blend`` (mm): ``G64 P<blend> Q0``, ``G61`` for 0, None for None.
+
+    P is written with up to 6 decimals (as LinuxCNC's interpreter reads it back).
+
+    Raises
+    ------
+    PlanningError
+        ``blend`` not a number, negative, not finite, or positive but below 1e-6 mm.
+    """
+    if blend is None:
+        return None
+    try:
+        b = float(blend)
+    except (TypeError, ValueError):
+        raise PlanningError(f"G-code: blend must be a number (mm), got {blend!r}") from None
+    if not (math.isfinite(b) and b >= 0):
+        raise PlanningError(f"G-code: blend must be a finite number >= 0 (mm), got {blend!r}")
+    if b == 0:
+        return "G61"
+    p = f"{b:.6f}".rstrip("0").rstrip(".")
+    if float(p) == 0:
+        raise PlanningError(f"G-code: blend {b!r} mm is below the 1e-6 mm that can be written; use 0 for exact path")
+    return f"G64 P{p} Q0"
 
 
 def _num(t: int) -> str:
@@ -225,9 +265,10 @@ def _header_value(v) -> str:
     return str(v)
 
 
-def _program(toolpath, feed, plunge_feed, spindle, header):
+def _program(toolpath, feed, plunge_feed, spindle, header, blend=None):
     from conformill import __version__
 
+    control = path_control(blend)
     feed = _positive("feed", feed)
     plunge = feed if plunge_feed is None else _positive("plunge_feed", plunge_feed)
     if spindle is not None:
@@ -254,6 +295,8 @@ def _program(toolpath, feed, plunge_feed, spindle, header):
         lines.append(f"(param {_clean_comment(k)}: {_clean_comment(_header_value(v))})")
     lines.append("G21 G90 G17 G94")
     lines.append("G40 G49 G80")
+    if control is not None:
+        lines.append(control)
     if spindle is not None:
         s = int(spindle) if float(spindle).is_integer() else spindle
         lines.append(f"M3 S{s}" if isinstance(s, int) else f"M3 S{s:.1f}")

@@ -107,6 +107,7 @@ def test_plan_programs_run_in_linuxcnc(part, tmp_path, pattern):
     (["--tool-radius", "4", "--scallop", "0.1", "--blend", "-0.01"], 3, "blend"),
     (["--tool-radius", "4", "--scallop", "0.1", "--blend", "nan"], 3, "blend"),
     (["--tool-radius", "4", "--scallop", "0.1", "--blend", "1e-8"], 3, "blend"),
+    (["--tool-radius", "4", "--scallop", "0.1", "--tool-number", "0"], 3, "tool number"),
     # a millimetre part read as metres: refused at once, not planned until memory runs out
     (["--tool-radius", "4", "--scallop", "0.01", "--scale", "10000"], 3, "--scale"),
 ])
@@ -240,3 +241,21 @@ def test_job_blend_is_checked():
     for bad in ("on", -1.0, float("inf"), float("nan"), 1e-9):
         with pytest.raises(PlanningError, match="blend"):
             check_job(Job(blend=bad))
+
+
+def test_tool_number_option(part, tmp_path, capsys):
+    out, rep = tmp_path / "t.nc", tmp_path / "t.json"
+    assert main(["plan", str(part), "--pattern", "contour", "--tool-radius", "4", "--scallop", "0.3", "-o", str(out),
+                 "--report", str(rep), "--tool-number", "12", "-q"]) == 0
+    lines = out.read_text().splitlines()
+    assert lines[lines.index("G64 P0.005 Q0") + 1:][:2] == ["T12 M6", "G43 H12"]
+    assert "(param tool length: T12 M6 G43 H12: from the tool table)" in lines
+    assert json.loads(rep.read_text())["job"]["tool_number"] == 12
+    assert main(["plan", str(part), "--pattern", "contour", "--tool-radius", "4", "--scallop", "0.3", "-o", str(out),
+                 "-q"]) == 0
+    lines = out.read_text().splitlines()
+    assert not any(ln.startswith(("T", "G43")) for ln in lines)
+    assert "(param tool length: G49: the work offset holds it [tool tip touched off])" in lines
+    rc = main(["plan", str(part), "--tool-radius", "4", "--scallop", "0.3", "-o", str(tmp_path / "u.nc"),
+               "--tool-number", "one"])
+    assert rc == 2 and "--tool-number" in capsys.readouterr().err and not (tmp_path / "u.nc").exists()

@@ -270,3 +270,26 @@ def test_path_control_sits_in_the_preamble_and_changes_nothing_else(tmp_path, bl
 
     pa, pb = read_gcode(tmp_path / "a.nc"), read_gcode(tmp_path / "b.nc")
     assert np.array_equal(pa.points, pb.points) and np.array_equal(pa.motion, pb.motion)
+
+
+def test_tool_number_changes_the_tool_and_applies_its_length():
+    tp = _toolpath(2, 10)
+    plain = format_gcode(tp, feed=900, spindle=12000, blend=0.005).splitlines()
+    lines = format_gcode(tp, feed=900, spindle=12000, blend=0.005, tool=7).splitlines()
+    i = lines.index("G64 P0.005 Q0")
+    # after the modes, before the spindle starts and before any motion; nothing else changes
+    assert lines[i + 1:i + 4] == ["T7 M6", "G43 H7", "M3 S12000"]
+    assert lines[:i + 1] + lines[i + 3:] == plain
+    assert not any(ln.startswith(("T", "G43")) for ln in plain) and "G40 G49 G80" in plain
+    assert format_gcode(tp, feed=900, tool=np.int64(2)).splitlines()[format_gcode(tp, feed=900).splitlines().index(
+        "G40 G49 G80") + 1] == "T2 M6"
+
+
+@pytest.mark.parametrize("tool", [0, -3, 1.5, True, "1", 2**31, float("nan"), float("inf")])
+def test_tool_number_refuses_bad_values(tool):
+    from conformill.output.gcode import tool_number
+
+    with pytest.raises(PlanningError, match="tool number"):
+        tool_number(tool)
+    with pytest.raises(PlanningError, match="tool number"):
+        format_gcode(_toolpath(1, 5), feed=500, tool=tool)

@@ -157,3 +157,18 @@ def test_path_control_reaches_the_interpreter(tmp_path, blend, mode):
     first_move = min(canon.index("STRAIGHT_TRAVERSE"), canon.index("STRAIGHT_FEED"))
     assert re.search(mode, canon[:first_move])
     _check_against_toolpath(canon, tp)
+
+
+def test_tool_number_reaches_the_interpreter(tmp_path):
+    tp = _toolpath(2, 30)
+    write_gcode(tmp_path / "tool.nc", tp, feed=1200, blend=0.005, tool=3)
+    rc, out, canon = run_rs274(None, tmp_path, "tool")
+    _assert_clean(rc, out)
+    first_move = min(canon.index("STRAIGHT_TRAVERSE"), canon.index("STRAIGHT_FEED"))
+    head = canon[:first_move]
+    # the change, then the length offset of tool 3 (rs274's built-in table gives it a length)
+    last = head.rindex("USE_TOOL_LENGTH_OFFSET")
+    assert head.index("CHANGE_TOOL(3)") < last
+    z_offset = float(re.match(r"USE_TOOL_LENGTH_OFFSET\(\S+ \S+ (\S+),", head[last:]).group(1))
+    assert z_offset != 0.0  # G43 H3 applied a length (G49 in the preamble had set 0)
+    _check_against_toolpath(canon, tp)

@@ -18,7 +18,7 @@ from conformill import __version__
 from conformill.errors import PlanningError
 from conformill.geometry.surface import DomainSurface
 from conformill.patterns.family import Planner
-from conformill.output.gcode import path_control
+from conformill.output.gcode import path_control, tool_number
 from conformill.passes import PassBuilder, threads_can_overlap
 from conformill.planning.steps import check_params, side_interval
 from conformill.types import PENCIL_SEARCHES, Mesh, PathParams, PlanResult, ToolPath
@@ -136,6 +136,10 @@ class Job:
         without ``P`` rounds corners by any amount). None (default): :attr:`blend_tolerance`'s
         ``min(e / 2, h / 4)``, the budgets the planner keeps its own moves to (e/2 into
         the part, h/4 above the surface on concave ground).
+    tool_number : int or None
+        The program changes to this tool (``T N M6``) and applies its length from the
+        machine's tool table (``G43 H N``); None (default): the tool tip is touched off and
+        the program keeps any length offset cancelled (``G49``).
     """
 
     pattern: str = "spiral"
@@ -163,6 +167,7 @@ class Job:
     hop_lift: float = 0.0
     rapid: float = 5000.0
     blend: float | str | None = None
+    tool_number: int | None = None
 
     @property
     def plunge_rate(self) -> float:
@@ -231,6 +236,7 @@ def check_job(job: Job) -> None:
         raise PlanningError(f"blend must be a number >= 0 (mm) or 'off', got {job.blend!r}")
     try:
         path_control(job.blend_tolerance)
+        tool_number(job.tool_number)
     except PlanningError as exc:
         raise PlanningError(str(exc).replace("G-code: ", "", 1)) from None
 
@@ -585,7 +591,8 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
                 "concave_steps": job.concave_steps, "spacing": job.spacing, "settle": job.settle,
                 "fit": job.fit, "pencil": job.pencil, "pencil_density": job.pencil_density,
                 "pencil_search": job.pencil_search, "pencil_left": job.pencil_left,
-                "blend": "off" if job.blend_tolerance is None else job.blend_tolerance},
+                "blend": "off" if job.blend_tolerance is None else job.blend_tolerance,
+                "tool_number": job.tool_number},
         "orientation": orient_info,
         "parameterization": {"boundary": param.kind, "domain": param.domain, "corners": param.corners,
                              "solver": param.solver, "residual": param.residual, "fallbacks": param.fallbacks,

@@ -76,6 +76,9 @@ def add_arguments(p) -> None:
                         "point: no merging of nearly collinear moves); 0: exact path (G61); off: none written, the "
                         "machine's own mode. Default: the smaller of E/2 and H/4, the budgets the planner keeps its "
                         "own moves to. Not simulated by --verify")
+    p.add_argument("--tool-number", type=int, default=None, metavar="N",
+                   help="change to tool N and apply its length from the machine's tool table (T N M6, G43 H N); "
+                        "default: none, the tool tip is touched off (the program cancels length offsets, G49)")
     p.add_argument("--max-step", type=float, default=10.0, metavar="L", help="longest forward step, mm (10)")
     p.add_argument("--threads", type=int, default=None, metavar="N",
                    help="threads for parallel stages (default all; with 1 the cutter runs after the pattern stage, "
@@ -132,7 +135,7 @@ def run(args) -> int:
               weights=args.weights, corners=_corners(args.corners), max_step=args.max_step, spindle=args.spindle,
               concave_steps=args.concave_steps, spacing=args.spacing, settle=args.settle, fit=args.fit,
               pencil=args.pencil, pencil_density=args.pencil_density, hop_lift=args.hop_lifted,
-              rapid=args.rapid, pencil_left=args.pencil_left, blend=args.blend,
+              rapid=args.rapid, pencil_left=args.pencil_left, blend=args.blend, tool_number=args.tool_number,
               **({} if args.pencil_search is None else {"pencil_search": args.pencil_search}))
     from conformill.pipeline import check_job
 
@@ -179,6 +182,8 @@ def _run_job(args, job, judge_h: float) -> int:
         "spacing": job.spacing, "settle": job.settle, "fit": job.fit,
         "programmed point": "tool tip", "units": "mm",
         "path control": _control(job.blend_tolerance)[1],
+        "tool length": ("G49: the work offset holds it [tool tip touched off]" if job.tool_number is None
+                        else f"T{job.tool_number} M6 G43 H{job.tool_number}: from the tool table"),
     }
     if job.pencil:  # only then: the default program's bytes stay as they were
         header["pencil"] = (f"samples per mm2 {job.pencil_density:g}" if job.pencil_search == "samples"
@@ -190,7 +195,8 @@ def _run_job(args, job, judge_h: float) -> int:
     with all_or_nothing(args.output, args.report, args.plot, args.html):
         t = time.perf_counter()
         stats = write_gcode(args.output, result.toolpath, feed=job.feed, plunge_feed=job.plunge_rate,
-                            spindle=job.spindle, header=header, blend=job.blend_tolerance)
+                            spindle=job.spindle, header=header, blend=job.blend_tolerance,
+                            tool=job.tool_number)
         report["timings_s"]["gcode"] = time.perf_counter() - t
         report["program"] = stats
         if args.plot:

@@ -8,6 +8,8 @@ in ``tests/test_gcode_rs274.py``), with no ``%`` delimiters, and it looks like t
     G21 G90 G17 G94                     mm, absolute, XY plane, feed per minute
     G40 G49 G80                         no cutter compensation, no tool length offset, no cycle
     G64 P0.0025 Q0                      path control, only when ``blend`` is given (below)
+    T1 M6                               tool change and its length offset, only when a
+    G43 H1                              tool number is given (below)
     M3 S12000                           only when a spindle speed is given
     G0 Z25.0000
     G0 X.. Y..                          for every pass: rapid at safe Z above its start,
@@ -34,6 +36,11 @@ points the planner placed on purpose. ``blend = 0`` writes ``G61`` (exact path: 
 point is reached, at the cost of slowing down at corners); ``None`` writes neither (the
 machine's own mode applies).
 
+Tool length: the programmed point is the tool tip. Without a tool number the program
+cancels any tool length offset (``G49``), so the work offset must hold the tool's length
+(the tip touched off). With ``tool = N`` it changes to tool N (``T N M6``) and applies its
+length from the machine's tool table (``G43 H N``), as CAM posts for LinuxCNC do.
+
 Header comments never start with a word that LinuxCNC treats as an active comment
 (``MSG``, ``DEBUG``, ``PRINT``, ``LOG...``, ``PROBEOPEN``, ``PY``...): each is written as
 ``(param KEY: VALUE)`` with parentheses replaced by brackets, non-ASCII characters
@@ -52,7 +59,7 @@ from numba import njit
 from conformill.errors import OutputError, PlanningError
 from conformill.output.atomic import atomic_path
 
-__all__ = ["format_gcode", "path_control", "write_gcode"]
+__all__ = ["format_gcode", "path_control", "tool_number", "write_gcode"]
 
 #: Decimal places of coordinates (mm).
 DECIMALS = 4
@@ -62,7 +69,8 @@ _MAX_COMMENT = 200
 
 
 def format_gcode(toolpath, *, feed: float, plunge_feed: float | None = None,
-                 spindle: float | None = None, header: dict | None = None, blend: float | None = None) -> str:
+                 spindle: float | None = None, header: dict | None = None, blend: float | None = None,
+                 tool: int | None = None) -> str:
     """The RS274NGC program of a tool path, as text (pure; see the module docstring).
 
     Parameters
@@ -81,6 +89,9 @@ def format_gcode(toolpath, *, feed: float, plunge_feed: float | None = None,
     blend : float, optional
         Path control (mm, see the module docstring): ``G64 P<blend> Q0`` when positive,
         ``G61`` when 0, no line when None.
+    tool : int, optional
+        Tool number N >= 1: ``T N M6`` and ``G43 H N`` (its length from the tool table);
+        None: the tip is touched off (``G49`` stays in force).
 
     Returns
     -------
@@ -92,14 +103,16 @@ def format_gcode(toolpath, *, feed: float, plunge_feed: float | None = None,
     PlanningError
         No passes, a pass that is not ``(k, 3)`` finite with ``k >= 1``, a point above
         ``safe_z``, a non-finite ``safe_z``, a feed/speed that is not positive, or a
-        ``blend`` that is negative, not finite or below 1e-6 mm.
+        ``blend`` that is negative, not finite or below 1e-6 mm, or a ``tool`` that is not
+        an integer >= 1.
     """
-    text, _ = _program(toolpath, feed, plunge_feed, spindle, header, blend)
+    text, _ = _program(toolpath, feed, plunge_feed, spindle, header, blend, tool)
     return text
 
 
 def write_gcode(path, toolpath, *, feed: float, plunge_feed: float | None = None,
-                spindle: float | None = None, header: dict | None = None, blend: float | None = None) -> dict:
+                spindle: float | None = None, header: dict | None = None, blend: float | None = None,
+                tool: int | None = None) -> dict:
     """Write the program of :func:`format_gcode` to ``path`` atomically; return its statistics.
 
     Returns
@@ -118,7 +131,7 @@ def write_gcode(path, toolpath, *, feed: float, plunge_feed: float | None = None
     OutputError
         The folder does not exist or the file cannot be written (no file is left behind).
     """
-    text, stats = _program(toolpath, feed, plunge_feed, spindle, header, blend)
+    text, stats = _program(toolpath, feed, plunge_feed, spindle, header, blend, tool)
     data = text.encode("ascii")
     with atomic_path(path) as tmp:
         try:
@@ -167,6 +180,22 @@ def path_control(blend) -> str | None:
     if float(p) == 0:
         raise PlanningError(f"G-code: blend {b!r} mm is below the 1e-6 mm that can be written; use 0 for exact path")
     return f"G64 P{p} Q0"
+
+
+def tool_number(tool) -> int | None:
+    """A tool number checked: an integer >= 1 (``T`` and ``H`` words), or None.
+
+    Raises
+    ------
+    PlanningError
+        Not an integer (a float with a fraction, a string, a bool), or below 1.
+    """
+    if tool is None:
+        return None
+    if isinstance(tool, (bool, np.bool_)) or not isinstance(tool, (int, np.integer, float, np.floating)) \
+            or not float(tool).is_integer() or not 1 <= tool < 2**31:
+        raise PlanningError(f"G-code: the tool number must be an integer from 1, got {tool!r}")
+    return int(tool)
 
 
 def _num(t: int) -> str:
@@ -265,10 +294,11 @@ def _header_value(v) -> str:
     return str(v)
 
 
-def _program(toolpath, feed, plunge_feed, spindle, header, blend=None):
+def _program(toolpath, feed, plunge_feed, spindle, header, blend=None, tool=None):
     from conformill import __version__
 
     control = path_control(blend)
+    tool = tool_number(tool)
     feed = _positive("feed", feed)
     plunge = feed if plunge_feed is None else _positive("plunge_feed", plunge_feed)
     if spindle is not None:
@@ -297,6 +327,9 @@ def _program(toolpath, feed, plunge_feed, spindle, header, blend=None):
     lines.append("G40 G49 G80")
     if control is not None:
         lines.append(control)
+    if tool is not None:
+        lines.append(f"T{tool} M6")
+        lines.append(f"G43 H{tool}")
     if spindle is not None:
         s = int(spindle) if float(spindle).is_integer() else spindle
         lines.append(f"M3 S{s}" if isinstance(s, int) else f"M3 S{s:.1f}")

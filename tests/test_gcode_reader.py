@@ -204,3 +204,21 @@ def test_other_errors(tmp_path):
 def test_empty_program():
     p = read_gcode("%\n(nothing)\n%\n")
     assert len(p) == 0 and p.points.shape == (0, 3)
+
+
+@pytest.mark.parametrize("text, modes", [
+    ("G21\nG0 X0 Y0 Z5\nG1 Z0 F100\nG1 X1\nM30\n", ("unset",)),
+    ("G21\nG64 P0.005 Q0\nG0 X0 Y0 Z5\nG1 Z0 F100\nM30\n", ("G64 P0.005 Q0",)),
+    ("G20\nG64 P0.001\nG0 X0 Y0 Z1\nG1 Z0 F10\nM30\n", ("G64 P0.0254",)),  # inch tolerances in mm
+    ("G21 G64\nG0 X0 Y0 Z5\nG1 Z0 F100\nG61\nG1 X1\nG61.1\nG2 X2 Y1 I0.5 J0.5\nG64 P0.01\nG1 X3\nG61\nG1 X4\n",
+     ("G64", "G61", "G61.1", "G64 P0.01")),
+    ("G21\nG0 X0 Y0 Z5\nG1 Z0 F100\nG64 P0.01\nG0 Z5\nM30\n", ("unset",)),  # set after the only feed move
+    ("G21\nG64 P0.01\nG0 X0 Y0 Z5\nG0 X1\nM30\n", ()),  # rapids only
+])
+def test_path_modes_of_the_feed_moves(text, modes):
+    prog = read_gcode(text)
+    assert prog.path_modes == modes
+    # recorded, not simulated: the same moves without any mode block
+    plain = read_gcode("\n".join(ln for ln in text.splitlines() if not ln.startswith(("G61", "G64"))).replace(
+        "G21 G64", "G21"))
+    assert np.array_equal(prog.points, plain.points) and np.array_equal(prog.motion, plain.motion)

@@ -137,3 +137,26 @@ def test_reach_depth_is_the_functions_and_a_deeper_one_excuses_less(tmp_path, ca
     assert 0 < frac[0] <= frac[1] <= frac[2]
     assert frac[0] < frac[2]  # the depth does matter here
     capsys.readouterr()
+
+
+def test_path_control_is_reported_not_simulated(files, tmp_path, capsys):
+    mesh, program = files
+    nc = program("good.nc")
+    text = nc.read_text()
+    runs = {}
+    for name, mode in (("none", ""), ("blend", " G64 P0.005 Q0"), ("any", " G64")):
+        p = tmp_path / f"{name}.nc"
+        p.write_text(text.replace("G21 G90\n", f"G21 G90{mode}\n"))  # the same line numbers
+        rep = tmp_path / f"{name}.json"
+        assert main(["verify", str(mesh), str(p), "-r", "3", "--scallop", "0.05", "--samples", "20000",
+                     "--report", str(rep)]) == 0
+        runs[name] = capsys.readouterr().out, json.loads(rep.read_text())
+    out, rep = runs["blend"]
+    assert rep["path_control"] == ["G64 P0.005 Q0"] and "path control of the feed moves: G64 P0.005 Q0" in out
+    assert "any amount" not in out
+    assert runs["any"][1]["path_control"] == ["G64"] and "G64 without P" in runs["any"][0]
+    assert runs["none"][1]["path_control"] == ["unset"] and "machine's own mode" in runs["none"][0]
+    # the figures are the same: the mode is recorded, not simulated
+    strip = ("path_control", "seconds", "program")
+    assert {k: v for k, v in rep.items() if k not in strip} == \
+        {k: v for k, v in runs["none"][1].items() if k not in strip}

@@ -118,6 +118,15 @@ def table(summary: dict) -> str:
     out.append(f"rapid clearance min {rc} over {g['n_rapids']} rapids; "
                f"vertical retracts ({g['n_retracts']}): min {_fmt(g['retract_min_clearance'])}")
     out.append(f"feed moves {g['feed_moves']}, feed length {g['feed_length_mm']:.1f} mm, tool radius {g['tool_radius']:g} mm")
+    modes = g.get("path_control")
+    if modes:
+        out.append(f"path control of the feed moves: {', '.join(modes)} (the controller's corner rounding is not "
+                   f"simulated)")
+        if "G64" in modes:
+            out.append("  G64 without P: the controller may round their corners by any amount")
+        if "unset" in modes:
+            out.append("  unset: the machine's own mode applies (LinuxCNC's G64 without P may round corners by any "
+                       "amount)")
     if g["thresholds"]["scallop"] is not None or g["thresholds"]["gouge"] is not None:
         out.append("PASS" if g["pass"] else "FAIL: " + "; ".join(g["failures"]))
     return "\n".join(out)
@@ -162,7 +171,8 @@ def _check(args) -> int:
                      progress=update, rest=args.rest, reach_depth=args.reach_depth)
     seconds = time.perf_counter() - t0
     summary = dict(res.summary)
-    summary.update(mesh=mesh.name, program=program.source, faces=mesh.n_faces, scale=args.scale, seconds=seconds)
+    summary.update(mesh=mesh.name, program=program.source, faces=mesh.n_faces, scale=args.scale, seconds=seconds,
+                   path_control=list(program.path_modes))
     if args.report:
         from conformill.output.report import write_json
 

@@ -94,6 +94,11 @@ class Program:
         File name, or ``"<text>"``.
     units : str
         ``"mm"`` or ``"inch"``: the units the program was written in (last G20/G21 seen).
+    path_modes : tuple of str
+        The path-control modes the feed moves run in, in order of first use: ``"G64 P<p>
+        Q<q>"`` (tolerances in mm, as given), ``"G64"`` (no ``P``: the controller may round
+        corners by any amount), ``"G61"``, ``"G61.1"``, or ``"unset"`` (none set yet: the
+        machine's own mode). Recorded, not simulated: the moves are taken as programmed.
     """
 
     points: np.ndarray
@@ -103,6 +108,7 @@ class Program:
     feed: np.ndarray = field(repr=False)
     source: str = "<text>"
     units: str = "mm"
+    path_modes: tuple = ()
 
     def __len__(self) -> int:
         return int(self.points.shape[0])
@@ -224,6 +230,8 @@ def read_gcode(source, chord_tol: float = 0.001, start=None, block_delete: bool 
     lin: list = []
     fed: list = []
     units = "mm"
+    path_mode = "unset"
+    path_modes: list = []
 
     for lineno, raw in enumerate(text.splitlines(), start=1):
         s = raw.strip()
@@ -291,6 +299,10 @@ def read_gcode(source, chord_tol: float = 0.001, start=None, block_delete: bool 
                 pass
             else:
                 raise _error(lineno, raw, f"G{g:g} is not supported")
+        if 61.0 in gs or 61.1 in gs:
+            path_mode = "G61.1" if 61.1 in gs else "G61"
+        elif 64.0 in gs:
+            path_mode = "G64" + "".join(f" {k}{vals[k] * scale:g}" for k in "PQ" if k in vals)
         if "F" in vals:
             if vals["F"] < 0:
                 raise _error(lineno, raw, "negative feed rate")
@@ -352,6 +364,8 @@ def read_gcode(source, chord_tol: float = 0.001, start=None, block_delete: bool 
             arc = _arc_points(p0, p1, centre, mode == 2, turns, chord_tol, 0.05, lineno, raw)
             pts.append(arc)
             mot.append(np.full(len(arc), FEED, dtype=np.int8))
+            if path_mode not in path_modes:
+                path_modes.append(path_mode)
             lin.append(np.full(len(arc), lineno, dtype=np.int64))
             fed.append(np.full(len(arc), feed))
         else:
@@ -359,6 +373,8 @@ def read_gcode(source, chord_tol: float = 0.001, start=None, block_delete: bool 
                 raise _error(lineno, raw, f"arc words on a G{mode} move")
             pts.append(np.array([target]))
             mot.append(np.array([RAPID if mode == 0 else FEED], dtype=np.int8))
+            if mode != 0 and path_mode not in path_modes:
+                path_modes.append(path_mode)
             lin.append(np.array([lineno], dtype=np.int64))
             fed.append(np.array([feed]))
         pos = target
@@ -390,4 +406,5 @@ def read_gcode(source, chord_tol: float = 0.001, start=None, block_delete: bool 
             known = np.flatnonzero(~np.isnan(col))
             first = known[0] if len(known) else len(col)
             col[:first] = st[i]
-    return Program(points=P, motion=M, line=L, start=st, feed=Fd, source=name, units=units)
+    return Program(points=P, motion=M, line=L, start=st, feed=Fd, source=name, units=units,
+                   path_modes=tuple(path_modes))

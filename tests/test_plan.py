@@ -1,5 +1,7 @@
 """End-to-end planning on analytic parts: spacing, CC on the mesh, cutter offset, errors."""
 
+import logging
+
 import numpy as np
 import pytest
 
@@ -251,3 +253,18 @@ def test_settle_lowers_moves_into_a_groove_narrower_than_the_ball():
         floats[settle] = max(worst)
     assert floats[0.0] > 4 * h
     assert floats[0.5] <= 0.5 * h
+
+
+def test_concave_warning_points_to_the_pencil(caplog):
+    """A bowl tighter than the ball: the warning names the region and, without the pencil,
+    the option that adds passes there."""
+    m = synthetic.sphere_cap(R=10.0, radius_xy=7.0, spacing=1.0, concave=True)
+    for pencil in (False, True):
+        caplog.clear()
+        with caplog.at_level(logging.WARNING):
+            res = plan(m, Job(pattern="contour", tool_radius=12.0, scallop=0.5, pencil=pencil,
+                              pencil_search="folds", pencil_density=5.0))
+        assert res.report["reachability"]["concave_below_tool_radius_share"] > 0.5
+        msgs = [r.getMessage() for r in caplog.records if "the ball cannot follow it there" in r.getMessage()]
+        assert len(msgs) == 1
+        assert ("--pencil adds passes" in msgs[0]) is (not pencil)

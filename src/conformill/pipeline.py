@@ -487,8 +487,9 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
             regions = _regions(unreach_f, fmesh, ffa)
             if unreach_share > 0:
                 log.warning("%.2f%% of the surface is concave with a radius at or below the tool radius %.3g mm: "
-                            "the ball cannot follow it there (largest region near %s)", 100 * unreach_share, r,
-                            np.round(regions[0]["centre"], 2).tolist() if regions else "?")
+                            "the ball cannot follow it there (largest region near %s)%s", 100 * unreach_share, r,
+                            np.round(regions[0]["centre"], 2).tolist() if regions else "?",
+                            "" if job.pencil else "; --pencil adds passes where the ball wedges against them")
 
         # dense sampling: about one mesh edge (the fitted fields are linear inside a face), never
         # coarser than a third of the flat side step

@@ -17,8 +17,8 @@ import numpy as np
 from conformill import __version__
 from conformill.errors import PlanningError
 from conformill.geometry.surface import DomainSurface
-from conformill.patterns.family import Planner
 from conformill.output.gcode import path_control, tool_number
+from conformill.patterns.family import Planner
 from conformill.passes import PassBuilder, threads_can_overlap
 from conformill.planning.steps import check_params, side_interval
 from conformill.types import PENCIL_SEARCHES, Mesh, PathParams, PlanResult, ToolPath

@@ -107,6 +107,8 @@ def test_plan_programs_run_in_linuxcnc(part, tmp_path, pattern):
     (["--tool-radius", "4", "--scallop", "0.1", "--blend", "-0.01"], 3, "blend"),
     (["--tool-radius", "4", "--scallop", "0.1", "--blend", "nan"], 3, "blend"),
     (["--tool-radius", "4", "--scallop", "0.1", "--blend", "1e-8"], 3, "blend"),
+    (["--tool-radius", "4", "--scallop", "0.1", "--blend", "5"], 3, "blend"),
+    (["--tool-radius", "4", "--scallop", "0.1", "--blend", "1e300"], 3, "blend"),
     (["--tool-radius", "4", "--scallop", "0.1", "--tool-number", "0"], 3, "tool number"),
     # a millimetre part read as metres: refused at once, not planned until memory runs out
     (["--tool-radius", "4", "--scallop", "0.01", "--scale", "10000"], 3, "--scale"),
@@ -191,7 +193,7 @@ def test_pencil_option_reaches_the_report_the_header_and_the_summary(part, tmp_p
 
 
 def test_blend_path_control(part, tmp_path, capsys):
-    """The program asks the controller for its path tolerance: G64 P min(e/2, h/4) Q0 by
+    """The program asks the controller for its path tolerance: G64 P min(e, h)/4 Q0 by
     default, the given P, G61 for 0, nothing with off; the moves are the same bytes."""
     def run(*extra, h="0.3", e="0.01"):
         out = tmp_path / "p.nc"
@@ -205,11 +207,11 @@ def test_blend_path_control(part, tmp_path, capsys):
         return [ln for ln in lines if ln.startswith(("G0", "G1"))]
 
     base, rep, summary = run()
-    assert "G64 P0.005 Q0" in base and rep["job"]["blend"] == 0.005  # e/2 < h/4
-    assert base[base.index("G40 G49 G80") + 1] == "G64 P0.005 Q0"
-    assert "(param path control: G64 P0.005 Q0: corners rounded by at most 0.005 mm" in "\n".join(base)
-    assert "lines, G64 P0.005 Q0" in summary
-    lines, rep, _ = run(h="0.008", e="0.01")  # h/4 < e/2
+    assert "G64 P0.0025 Q0" in base and rep["job"]["blend"] == 0.0025  # e/4 < h/4
+    assert base[base.index("G40 G49 G80") + 1] == "G64 P0.0025 Q0"
+    assert "(param path control: G64 P0.0025 Q0: corners rounded by at most 0.0025 mm" in "\n".join(base)
+    assert "lines, G64 P0.0025 Q0" in summary
+    lines, rep, _ = run(h="0.008", e="0.01")  # h/4 < e/4
     assert "G64 P0.002 Q0" in lines and rep["job"]["blend"] == 0.002
     lines, rep, summary = run("--blend", "0.02")
     assert "G64 P0.02 Q0" in lines and rep["job"]["blend"] == 0.02 and moves(lines) == moves(base)
@@ -236,9 +238,16 @@ def test_job_blend_is_checked():
     from conformill.pipeline import Job, check_job
 
     assert Job(scallop=0.01, tolerance=0.01).blend_tolerance == 0.0025
-    assert Job(scallop=0.1, tolerance=0.01).blend_tolerance == 0.005
+    assert Job(scallop=0.1, tolerance=0.04).blend_tolerance == 0.01
+    assert Job(scallop=0.1, tolerance=0.002).blend_tolerance == 0.0005
     assert Job(blend="off").blend_tolerance is None and Job(blend=0).blend_tolerance == 0.0
-    for bad in ("on", -1.0, float("inf"), float("nan"), 1e-9):
+    assert str(Job(blend=-0.0).blend_tolerance) == "0.0"
+    # a default below what can be written is exact path, not a refusal of an option never given
+    tiny = Job(scallop=0.1, tolerance=2e-6)
+    check_job(tiny)
+    assert tiny.blend_tolerance == 0.0
+    check_job(Job(tool_radius=4.0, blend=4.0))
+    for bad in ("on", "OFF", True, -1.0, float("inf"), float("nan"), 1e-9, 4.01, 1e300):
         with pytest.raises(PlanningError, match="blend"):
             check_job(Job(blend=bad))
 
@@ -248,7 +257,7 @@ def test_tool_number_option(part, tmp_path, capsys):
     assert main(["plan", str(part), "--pattern", "contour", "--tool-radius", "4", "--scallop", "0.3", "-o", str(out),
                  "--report", str(rep), "--tool-number", "12", "-q"]) == 0
     lines = out.read_text().splitlines()
-    assert lines[lines.index("G64 P0.005 Q0") + 1:][:2] == ["T12 M6", "G43 H12"]
+    assert lines[lines.index("G64 P0.0025 Q0") + 1:][:2] == ["T12 M6", "G43 H12"]
     assert "(param tool length: T12 M6 G43 H12: from the tool table)" in lines
     assert json.loads(rep.read_text())["job"]["tool_number"] == 12
     assert main(["plan", str(part), "--pattern", "contour", "--tool-radius", "4", "--scallop", "0.3", "-o", str(out),

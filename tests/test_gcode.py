@@ -231,7 +231,8 @@ def test_compiled_formatter_matches_reference():
 @pytest.mark.parametrize("blend, block", [
     (None, None), (0, "G61"), (0.0, "G61"), (0.0025, "G64 P0.0025 Q0"), (0.005, "G64 P0.005 Q0"),
     (1, "G64 P1 Q0"), (2.5, "G64 P2.5 Q0"), (1e-6, "G64 P0.000001 Q0"), (0.00025, "G64 P0.00025 Q0"),
-    (np.float32(0.5), "G64 P0.5 Q0"),
+    (np.float32(0.5), "G64 P0.5 Q0"), (0.0029, "G64 P0.0029 Q0"), (1000, "G64 P1000 Q0"),
+    (1.9e-6, "G64 P0.000001 Q0"), (0.0123456789, "G64 P0.012345 Q0"),  # rounded down: never looser
 ])
 def test_path_control_block(blend, block):
     from conformill.output.gcode import path_control
@@ -239,7 +240,8 @@ def test_path_control_block(blend, block):
     assert path_control(blend) == block
 
 
-@pytest.mark.parametrize("blend", [-1.0, -1e-9, float("nan"), float("inf"), "x", [0.1], 1e-7, 4e-7])
+@pytest.mark.parametrize("blend", [-1.0, -1e-9, float("nan"), float("inf"), "x", "0.1", [0.1], True, 1e-7, 9e-7,
+                                   1000.5, 1e300])
 def test_path_control_refuses_bad_values(blend):
     from conformill.output.gcode import path_control
 

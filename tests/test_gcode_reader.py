@@ -1,6 +1,7 @@
 """The G-code reader of conformill.verify: arcs, modes, units, comments and every error."""
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -214,11 +215,23 @@ def test_empty_program():
      ("G64", "G61", "G61.1", "G64 P0.01")),
     ("G21\nG0 X0 Y0 Z5\nG1 Z0 F100\nG64 P0.01\nG0 Z5\nM30\n", ("unset",)),  # set after the only feed move
     ("G21\nG64 P0.01\nG0 X0 Y0 Z5\nG0 X1\nM30\n", ()),  # rapids only
+    ("G21\nG0 X0 Y0 Z5\nG64 P0.02 G1 Z0 F100\nG61 G1 X1\n", ("G64 P0.02", "G61")),  # on a motion's line
+    ("G21\nG64 P0\nG0 X0 Y0 Z5\nG1 Z0 F100\nG64 Q0.1\nG1 X1\n", ("G64 P0", "G64 Q0.1")),
 ])
 def test_path_modes_of_the_feed_moves(text, modes):
     prog = read_gcode(text)
     assert prog.path_modes == modes
     # recorded, not simulated: the same moves without any mode block
-    plain = read_gcode("\n".join(ln for ln in text.splitlines() if not ln.startswith(("G61", "G64"))).replace(
-        "G21 G64", "G21"))
+    plain = read_gcode(re.sub(r"G6[14](\.1)?( [PQ][-\d.]+)*", "", text))
     assert np.array_equal(prog.points, plain.points) and np.array_equal(prog.motion, plain.motion)
+
+
+def test_unbounded_modes_and_one_mode_per_block():
+    from conformill.verify.gcode import unbounded_mode
+
+    for mode, loose in [("G64", True), ("G64 P0", True), ("G64 P-1", True), ("G64 Q0.1", True),
+                        ("G64 P0.005 Q0", False), ("G64 P0.0254", False), ("G61", False), ("G61.1", False),
+                        ("unset", False)]:
+        assert unbounded_mode(mode) is loose, mode
+    with pytest.raises(GCodeError, match="line 2.*two path-control modes"):
+        read_gcode("G21\nG61 G64 P0.1\nG0 X0 Y0 Z1\nG1 Z0 F10\n")

@@ -144,7 +144,7 @@ def test_path_control_is_reported_not_simulated(files, tmp_path, capsys):
     nc = program("good.nc")
     text = nc.read_text()
     runs = {}
-    for name, mode in (("none", ""), ("blend", " G64 P0.005 Q0"), ("any", " G64")):
+    for name, mode in (("none", ""), ("blend", " G64 P0.005 Q0"), ("any", " G64"), ("zero", " G64 P0 Q0.1")):
         p = tmp_path / f"{name}.nc"
         p.write_text(text.replace("G21 G90\n", f"G21 G90{mode}\n"))  # the same line numbers
         rep = tmp_path / f"{name}.json"
@@ -154,7 +154,8 @@ def test_path_control_is_reported_not_simulated(files, tmp_path, capsys):
     out, rep = runs["blend"]
     assert rep["path_control"] == ["G64 P0.005 Q0"] and "path control of the feed moves: G64 P0.005 Q0" in out
     assert "any amount" not in out
-    assert runs["any"][1]["path_control"] == ["G64"] and "G64 without P" in runs["any"][0]
+    assert runs["any"][1]["path_control"] == ["G64"] and "G64 without a positive P" in runs["any"][0]
+    assert runs["zero"][1]["path_control"] == ["G64 P0 Q0.1"] and "G64 without a positive P" in runs["zero"][0]
     assert runs["none"][1]["path_control"] == ["unset"] and "machine's own mode" in runs["none"][0]
     # the figures are the same: the mode is recorded, not simulated
     strip = ("path_control", "seconds", "program")

@@ -386,8 +386,9 @@ class PassBuilder:
 
         No move floats more than ``settle_tol`` above the drop surface (the material a
         chord leaves over a groove the ball cannot enter), then no move cuts more than
-        ``e / 2`` into the part (an exact bound): half of the gouge budget e, the other
-        half left to the mesh facets between samples.
+        ``e / 2`` into the part (an exact bound): half of the gouge budget e; of the
+        other half, the controller's corner rounding gets a quarter by default
+        (``Job.blend``, ``G64 P``) and the mesh facets between samples the rest.
 
         With ``hop_lift``, runs of centres lifted more than it are hopped over. Such a run
         is where the ball cannot reach its planned contact (an undercut, a pocket tighter

@@ -134,8 +134,11 @@ class Job:
         programmed path when rounding its corners (``G64 P<blend> Q0``); 0: exact path
         (``G61``); "off": no path-control block, the machine's own mode (LinuxCNC's ``G64``
         without ``P`` rounds corners by any amount). None (default): :attr:`blend_tolerance`'s
-        ``min(e / 2, h / 4)``, the budgets the planner keeps its own moves to (e/2 into
-        the part, h/4 above the surface on concave ground).
+        ``min(e, h) / 4``: the moves cut at most e/2 into the part, the rounding e/4 more,
+        and e/4 is left to the mesh's facets (e in all); above the surface the rounding
+        stays within the h/4 the planner allows its own chords on concave ground. A
+        default below the 1e-6 mm that can be written gives exact path (``G61``); more
+        than the tool radius is refused.
     tool_number : int or None
         The program changes to this tool (``T N M6``) and applies its length from the
         machine's tool table (``G43 H N``); None (default): the tool tip is touched off and
@@ -176,13 +179,17 @@ class Job:
 
     @property
     def blend_tolerance(self) -> float | None:
-        """The path-control tolerance written (mm): ``blend``, ``min(e / 2, h / 4)`` when
-        unset, None when "off" (no path-control block)."""
+        """The path-control tolerance written (mm): ``blend``; when unset ``min(e, h) / 4``,
+        or 0 (exact path) where that is below the 1e-6 mm that can be written; None for
+        "off" (no path-control block)."""
         if isinstance(self.blend, str) and self.blend == "off":
             return None
         if self.blend is None:
-            return min(0.5 * self.tolerance, 0.25 * self.scallop)
-        return float(self.blend)
+            b = 0.25 * min(self.tolerance, self.scallop)
+            return b if b >= 1e-6 else 0.0
+        if isinstance(self.blend, (bool, str)):
+            return self.blend  # refused by check_job
+        return float(self.blend) + 0.0  # -0.0 -> 0.0
 
 
 class _Timer:
@@ -234,6 +241,10 @@ def check_job(job: Job) -> None:
         raise PlanningError(f"hop-lifted must be a number >= 0 (mm; 0: off), got {job.hop_lift}")
     if isinstance(job.blend, str) and job.blend != "off":
         raise PlanningError(f"blend must be a number >= 0 (mm) or 'off', got {job.blend!r}")
+    b = job.blend_tolerance
+    if b is not None and not isinstance(b, (bool, str)) and np.isfinite(b) and b > job.tool_radius:
+        raise PlanningError(f"blend {b:g} mm is larger than the tool radius {job.tool_radius:g} mm: the controller "
+                            f"could round the path's corners by more than the ball")
     try:
         path_control(job.blend_tolerance)
         tool_number(job.tool_number)

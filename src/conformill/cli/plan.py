@@ -74,8 +74,9 @@ def add_arguments(p) -> None:
                    help="path control written for the controller: round the corners of the path by at most P mm "
                         "(G64 P<P> Q0: LinuxCNC's G64 without P rounds them by any amount, and Q0 keeps every "
                         "point: no merging of nearly collinear moves); 0: exact path (G61); off: none written, the "
-                        "machine's own mode. Default: the smaller of E/2 and H/4, the budgets the planner keeps its "
-                        "own moves to. Not simulated by --verify")
+                        "machine's own mode. Default: min(E, H)/4 (the moves cut at most E/2, the rounding E/4 "
+                        "more; above the surface within the H/4 the planner allows its chords). Not simulated by "
+                        "--verify")
     p.add_argument("--tool-number", type=int, default=None, metavar="N",
                    help="change to tool N and apply its length from the machine's tool table (T N M6, G43 H N); "
                         "default: none, the tool tip is touched off (the program cancels length offsets, G49)")
@@ -102,6 +103,8 @@ def _blend(text: str):
     if text.strip().lower() == "off":
         return "off"
     try:
+        if "_" in text:
+            raise ValueError
         return float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected a number (mm) or off, got {text!r}") from None

@@ -122,8 +122,12 @@ def table(summary: dict) -> str:
     if modes:
         out.append(f"path control of the feed moves: {', '.join(modes)} (the controller's corner rounding is not "
                    f"simulated)")
-        if "G64" in modes:
-            out.append("  G64 without P: the controller may round their corners by any amount")
+        from conformill.verify.gcode import unbounded_mode
+
+        loose = [m for m in modes if unbounded_mode(m)]
+        if loose:
+            out.append(f"  {', '.join(loose)}: G64 without a positive P, the controller may round their corners by "
+                       f"any amount")
         if "unset" in modes:
             out.append("  unset: the machine's own mode applies (LinuxCNC's G64 without P may round corners by any "
                        "amount)")

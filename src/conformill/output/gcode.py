@@ -156,30 +156,38 @@ def _positive(name, value):
     return v
 
 
+#: Largest path tolerance written (mm): beyond it ``G64 P`` no longer bounds anything.
+_MAX_BLEND = 1000.0
+
+
 def path_control(blend) -> str | None:
     """The path-control block for ``blend`` (mm): ``G64 P<blend> Q0``, ``G61`` for 0, None for None.
 
-    P is written with up to 6 decimals (as LinuxCNC's interpreter reads it back).
+    P is written with at most 6 decimals, rounded down (never looser than asked).
 
     Raises
     ------
     PlanningError
-        ``blend`` not a number, negative, not finite, or positive but below 1e-6 mm.
+        ``blend`` not a number (a bool or a string included), negative, not finite, above
+        1000 mm, or positive but below 1e-6 mm (0 when rounded down).
     """
     if blend is None:
         return None
+    if isinstance(blend, (bool, np.bool_, str)):
+        raise PlanningError(f"G-code: blend must be a number (mm), got {blend!r}")
     try:
         b = float(blend)
     except (TypeError, ValueError):
         raise PlanningError(f"G-code: blend must be a number (mm), got {blend!r}") from None
-    if not (math.isfinite(b) and b >= 0):
-        raise PlanningError(f"G-code: blend must be a finite number >= 0 (mm), got {blend!r}")
+    if not (math.isfinite(b) and 0 <= b <= _MAX_BLEND):
+        raise PlanningError(f"G-code: blend must be a number from 0 to {_MAX_BLEND:g} mm, got {blend!r}")
     if b == 0:
         return "G61"
-    p = f"{b:.6f}".rstrip("0").rstrip(".")
-    if float(p) == 0:
+    micro = math.floor(round(b * 1e6, 3))  # whole 1e-6 mm, rounded down
+    if micro == 0:
         raise PlanningError(f"G-code: blend {b!r} mm is below the 1e-6 mm that can be written; use 0 for exact path")
-    return f"G64 P{p} Q0"
+    q, r = divmod(micro, 10**6)
+    return f"G64 P{q}" + (f".{r:06d}".rstrip("0") if r else "") + " Q0"
 
 
 def tool_number(tool) -> int | None:
@@ -194,7 +202,7 @@ def tool_number(tool) -> int | None:
         return None
     if isinstance(tool, (bool, np.bool_)) or not isinstance(tool, (int, np.integer, float, np.floating)) \
             or not float(tool).is_integer() or not 1 <= tool < 2**31:
-        raise PlanningError(f"G-code: the tool number must be an integer from 1, got {tool!r}")
+        raise PlanningError(f"G-code: the tool number must be an integer from 1 to {2**31 - 1}, got {tool!r}")
     return int(tool)
 
 

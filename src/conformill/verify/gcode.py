@@ -41,7 +41,7 @@ import numpy as np
 
 from conformill.errors import GCodeError
 
-__all__ = ["Program", "read_gcode", "RAPID", "FEED"]
+__all__ = ["Program", "read_gcode", "unbounded_mode", "RAPID", "FEED"]
 
 RAPID = 0
 FEED = 1
@@ -70,6 +70,16 @@ _WORD = re.compile(r"([A-Z])([-+]?(?:\d+\.?\d*|\.\d+))")
 _COMMENT = re.compile(r"\([^)]*\)")
 
 
+def unbounded_mode(mode: str) -> bool:
+    """Whether a path mode of :attr:`Program.path_modes` is ``G64`` without a positive ``P``
+    (LinuxCNC then keeps the speed however far the tool strays from the path)."""
+    words = mode.split()
+    if not words or words[0] != "G64":
+        return False
+    p = [float(w[1:]) for w in words[1:] if w.startswith("P")]
+    return not (p and p[0] > 0)
+
+
 @dataclass(frozen=True, eq=False)
 class Program:
     """Tool-tip positions of a 3-axis program, in mm, one row per (linearised) move.
@@ -96,9 +106,11 @@ class Program:
         ``"mm"`` or ``"inch"``: the units the program was written in (last G20/G21 seen).
     path_modes : tuple of str
         The path-control modes the feed moves run in, in order of first use: ``"G64 P<p>
-        Q<q>"`` (tolerances in mm, as given), ``"G64"`` (no ``P``: the controller may round
-        corners by any amount), ``"G61"``, ``"G61.1"``, or ``"unset"`` (none set yet: the
-        machine's own mode). Recorded, not simulated: the moves are taken as programmed.
+        Q<q>"`` (the words given, in mm), ``"G61"``, ``"G61.1"``, or ``"unset"`` (none set
+        yet: the machine's own mode). A ``G64`` without a positive ``P`` (``"G64"``, ``"G64
+        P0"``, ``"G64 Q0.1"``) lets LinuxCNC round corners by any amount
+        (:func:`unbounded_mode`). Recorded, not simulated: the moves are taken as
+        programmed.
     """
 
     points: np.ndarray
@@ -299,6 +311,8 @@ def read_gcode(source, chord_tol: float = 0.001, start=None, block_delete: bool 
                 pass
             else:
                 raise _error(lineno, raw, f"G{g:g} is not supported")
+        if sum(g in (61.0, 61.1, 64.0) for g in gs) > 1:
+            raise _error(lineno, raw, "two path-control modes (G61, G61.1, G64) in one block")
         if 61.0 in gs or 61.1 in gs:
             path_mode = "G61.1" if 61.1 in gs else "G61"
         elif 64.0 in gs:

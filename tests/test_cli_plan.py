@@ -268,3 +268,20 @@ def test_tool_number_option(part, tmp_path, capsys):
     rc = main(["plan", str(part), "--tool-radius", "4", "--scallop", "0.3", "-o", str(tmp_path / "u.nc"),
                "--tool-number", "one"])
     assert rc == 2 and "--tool-number" in capsys.readouterr().err and not (tmp_path / "u.nc").exists()
+
+
+def test_coolant_option(part, tmp_path, capsys):
+    out, rep = tmp_path / "c.nc", tmp_path / "c.json"
+    assert main(["plan", str(part), "--pattern", "contour", "--tool-radius", "4", "--scallop", "0.3", "-o", str(out),
+                 "--report", str(rep), "--coolant", "flood", "--spindle", "12000", "-q"]) == 0
+    lines = out.read_text().splitlines()
+    assert lines[lines.index("M3 S12000") + 1] == "M8" and lines[-3:] == ["M9", "M5", "M30"]
+    assert "(param coolant: flood)" in lines and json.loads(rep.read_text())["job"]["coolant"] == "flood"
+    rc = main(["plan", str(part), "--tool-radius", "4", "--scallop", "0.3", "-o", str(tmp_path / "u.nc"),
+               "--coolant", "air"])
+    assert rc == 2 and "--coolant" in capsys.readouterr().err and not (tmp_path / "u.nc").exists()
+    from conformill.errors import PlanningError
+    from conformill.pipeline import Job, check_job
+
+    with pytest.raises(PlanningError, match="coolant"):
+        check_job(Job(coolant="air"))

@@ -295,3 +295,21 @@ def test_tool_number_refuses_bad_values(tool):
         tool_number(tool)
     with pytest.raises(PlanningError, match="tool number"):
         format_gcode(_toolpath(1, 5), feed=500, tool=tool)
+
+
+@pytest.mark.parametrize("coolant, word", [("flood", "M8"), ("mist", "M7")])
+def test_coolant_on_after_the_spindle_and_off_before_it_stops(coolant, word):
+    tp = _toolpath(2, 10)
+    plain = format_gcode(tp, feed=900, spindle=12000).splitlines()
+    lines = format_gcode(tp, feed=900, spindle=12000, coolant=coolant).splitlines()
+    i = lines.index("M3 S12000")
+    assert lines[i + 1] == word and lines[i + 2].startswith("G0 Z")  # before any motion
+    assert lines[-3:] == ["M9", "M5", "M30"] and plain[-2:] == ["M5", "M30"]
+    assert [ln for ln in lines if ln not in (word, "M9")] == plain
+    assert not any(ln in ("M7", "M8", "M9") for ln in plain)
+
+
+@pytest.mark.parametrize("coolant", ["air", "", "M8", True])
+def test_coolant_refuses_unknown_kinds(coolant):
+    with pytest.raises(PlanningError, match="coolant"):
+        format_gcode(_toolpath(1, 5), feed=500, coolant=coolant)

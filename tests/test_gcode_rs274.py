@@ -172,3 +172,15 @@ def test_tool_number_reaches_the_interpreter(tmp_path):
     z_offset = float(re.match(r"USE_TOOL_LENGTH_OFFSET\(\S+ \S+ (\S+),", head[last:]).group(1))
     assert z_offset != 0.0  # G43 H3 applied a length (G49 in the preamble had set 0)
     _check_against_toolpath(canon, tp)
+
+
+@pytest.mark.parametrize("coolant, on, off", [("flood", "FLOOD_ON", "FLOOD_OFF"), ("mist", "MIST_ON", "MIST_OFF")])
+def test_coolant_reaches_the_interpreter(tmp_path, coolant, on, off):
+    tp = _toolpath(2, 30)
+    write_gcode(tmp_path / "cool.nc", tp, feed=1200, spindle=9000, coolant=coolant)
+    rc, out, canon = run_rs274(None, tmp_path, "cool")
+    _assert_clean(rc, out)
+    first_feed, last_feed = canon.index("STRAIGHT_FEED"), canon.rindex("STRAIGHT_FEED")
+    assert canon.index("START_SPINDLE_CLOCKWISE") < canon.index(on) < first_feed
+    assert canon.rindex(off) > last_feed
+    _check_against_toolpath(canon, tp)

@@ -17,7 +17,7 @@ import numpy as np
 from conformill import __version__
 from conformill.errors import PlanningError
 from conformill.geometry.surface import DomainSurface
-from conformill.output.gcode import path_control, tool_number
+from conformill.output.gcode import COOLANTS, path_control, tool_number
 from conformill.patterns.family import Planner
 from conformill.passes import PassBuilder, threads_can_overlap
 from conformill.planning.steps import check_params, side_interval
@@ -143,6 +143,9 @@ class Job:
         The program changes to this tool (``T N M6``) and applies its length from the
         machine's tool table (``G43 H N``); None (default): the tool tip is touched off and
         the program keeps any length offset cancelled (``G49``).
+    coolant : {"flood", "mist"} or None
+        Coolant on after the spindle starts (``M8`` / ``M7``) and off at the end (``M9``);
+        None (default): the program leaves the coolant to the operator.
     """
 
     pattern: str = "spiral"
@@ -171,6 +174,7 @@ class Job:
     rapid: float = 5000.0
     blend: float | str | None = None
     tool_number: int | None = None
+    coolant: str | None = None
 
     @property
     def plunge_rate(self) -> float:
@@ -248,6 +252,8 @@ def check_job(job: Job) -> None:
     try:
         path_control(job.blend_tolerance)
         tool_number(job.tool_number)
+        if job.coolant is not None and job.coolant not in COOLANTS:
+            raise PlanningError(f"coolant must be one of {', '.join(COOLANTS)}, got {job.coolant!r}")
     except PlanningError as exc:
         raise PlanningError(str(exc).replace("G-code: ", "", 1)) from None
 
@@ -604,7 +610,7 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
                 "fit": job.fit, "pencil": job.pencil, "pencil_density": job.pencil_density,
                 "pencil_search": job.pencil_search, "pencil_left": job.pencil_left,
                 "blend": "off" if job.blend_tolerance is None else job.blend_tolerance,
-                "tool_number": job.tool_number},
+                "tool_number": job.tool_number, "coolant": job.coolant},
         "orientation": orient_info,
         "parameterization": {"boundary": param.kind, "domain": param.domain, "corners": param.corners,
                              "solver": param.solver, "residual": param.residual, "fallbacks": param.fallbacks,

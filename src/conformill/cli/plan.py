@@ -80,6 +80,9 @@ def add_arguments(p) -> None:
     p.add_argument("--tool-number", type=int, default=None, metavar="N",
                    help="change to tool N and apply its length from the machine's tool table (T N M6, G43 H N); "
                         "default: none, the tool tip is touched off (the program cancels length offsets, G49)")
+    p.add_argument("--coolant", choices=["flood", "mist"], default=None,
+                   help="turn the coolant on after the spindle starts (flood: M8, mist: M7) and off at the end (M9); "
+                        "default: no coolant words")
     p.add_argument("--max-step", type=float, default=10.0, metavar="L", help="longest forward step, mm (10)")
     p.add_argument("--threads", type=int, default=None, metavar="N",
                    help="threads for parallel stages (default all; with 1 the cutter runs after the pattern stage, "
@@ -139,6 +142,7 @@ def run(args) -> int:
               concave_steps=args.concave_steps, spacing=args.spacing, settle=args.settle, fit=args.fit,
               pencil=args.pencil, pencil_density=args.pencil_density, hop_lift=args.hop_lifted,
               rapid=args.rapid, pencil_left=args.pencil_left, blend=args.blend, tool_number=args.tool_number,
+              coolant=args.coolant,
               **({} if args.pencil_search is None else {"pencil_search": args.pencil_search}))
     from conformill.pipeline import check_job
 
@@ -188,6 +192,8 @@ def _run_job(args, job, judge_h: float) -> int:
         "tool length": ("G49: the work offset holds it [tool tip touched off]" if job.tool_number is None
                         else f"T{job.tool_number} M6 G43 H{job.tool_number}: from the tool table"),
     }
+    if job.coolant is not None:  # only then: the programs without it keep their bytes
+        header["coolant"] = job.coolant
     if job.pencil:  # only then: the default program's bytes stay as they were
         header["pencil"] = (f"samples per mm2 {job.pencil_density:g}" if job.pencil_search == "samples"
                             else f"folds, grid points per mm2 {job.pencil_density:g}")
@@ -199,7 +205,7 @@ def _run_job(args, job, judge_h: float) -> int:
         t = time.perf_counter()
         stats = write_gcode(args.output, result.toolpath, feed=job.feed, plunge_feed=job.plunge_rate,
                             spindle=job.spindle, header=header, blend=job.blend_tolerance,
-                            tool=job.tool_number)
+                            tool=job.tool_number, coolant=job.coolant)
         report["timings_s"]["gcode"] = time.perf_counter() - t
         report["program"] = stats
         if args.plot:

@@ -11,11 +11,13 @@ in ``tests/test_gcode_rs274.py``), with no ``%`` delimiters, and it looks like t
     T1 M6                               tool change and its length offset, only when a
     G43 H1                              tool number is given (below)
     M3 S12000                           only when a spindle speed is given
+    M8                                  coolant on (M8 flood, M7 mist), only when asked
     G0 Z25.0000
     G0 X.. Y..                          for every pass: rapid at safe Z above its start,
     G1 Z.. F<plunge>                    vertical plunge to the pass start,
     G1 X.. Y.. Z.. F<feed>              cut moves (F only when it changes),
     G0 Z25.0000                         vertical retract
+    M9                                  coolant off, only when it was turned on
     M5
     M30
 
@@ -59,7 +61,7 @@ from numba import njit
 from conformill.errors import OutputError, PlanningError
 from conformill.output.atomic import atomic_path
 
-__all__ = ["format_gcode", "path_control", "tool_number", "write_gcode"]
+__all__ = ["COOLANTS", "format_gcode", "path_control", "tool_number", "write_gcode"]
 
 #: Decimal places of coordinates (mm).
 DECIMALS = 4
@@ -70,7 +72,7 @@ _MAX_COMMENT = 200
 
 def format_gcode(toolpath, *, feed: float, plunge_feed: float | None = None,
                  spindle: float | None = None, header: dict | None = None, blend: float | None = None,
-                 tool: int | None = None) -> str:
+                 tool: int | None = None, coolant: str | None = None) -> str:
     """The RS274NGC program of a tool path, as text (pure; see the module docstring).
 
     Parameters
@@ -92,6 +94,9 @@ def format_gcode(toolpath, *, feed: float, plunge_feed: float | None = None,
     tool : int, optional
         Tool number N >= 1: ``T N M6`` and ``G43 H N`` (its length from the tool table);
         None: the tip is touched off (``G49`` stays in force).
+    coolant : {"flood", "mist"}, optional
+        ``M8`` (flood) or ``M7`` (mist) after the spindle starts, ``M9`` before it stops;
+        None: no coolant words.
 
     Returns
     -------
@@ -103,16 +108,16 @@ def format_gcode(toolpath, *, feed: float, plunge_feed: float | None = None,
     PlanningError
         No passes, a pass that is not ``(k, 3)`` finite with ``k >= 1``, a point above
         ``safe_z``, a non-finite ``safe_z``, a feed/speed that is not positive, or a
-        ``blend`` that is negative, not finite or below 1e-6 mm, or a ``tool`` that is not
-        an integer >= 1.
+        ``blend`` that is negative, not finite or below 1e-6 mm, a ``tool`` that is not
+        an integer >= 1, or an unknown ``coolant``.
     """
-    text, _ = _program(toolpath, feed, plunge_feed, spindle, header, blend, tool)
+    text, _ = _program(toolpath, feed, plunge_feed, spindle, header, blend, tool, coolant)
     return text
 
 
 def write_gcode(path, toolpath, *, feed: float, plunge_feed: float | None = None,
                 spindle: float | None = None, header: dict | None = None, blend: float | None = None,
-                tool: int | None = None) -> dict:
+                tool: int | None = None, coolant: str | None = None) -> dict:
     """Write the program of :func:`format_gcode` to ``path`` atomically; return its statistics.
 
     Returns
@@ -131,7 +136,7 @@ def write_gcode(path, toolpath, *, feed: float, plunge_feed: float | None = None
     OutputError
         The folder does not exist or the file cannot be written (no file is left behind).
     """
-    text, stats = _program(toolpath, feed, plunge_feed, spindle, header, blend, tool)
+    text, stats = _program(toolpath, feed, plunge_feed, spindle, header, blend, tool, coolant)
     data = text.encode("ascii")
     with atomic_path(path) as tmp:
         try:
@@ -155,6 +160,9 @@ def _positive(name, value):
         raise PlanningError(f"G-code: {name} must be positive and finite, got {value!r}")
     return v
 
+
+#: Coolant words (``coolant``): on, and the one that turns it off.
+COOLANTS = {"flood": "M8", "mist": "M7"}
 
 #: Largest path tolerance written (mm): beyond it ``G64 P`` no longer bounds anything.
 _MAX_BLEND = 1000.0
@@ -302,11 +310,13 @@ def _header_value(v) -> str:
     return str(v)
 
 
-def _program(toolpath, feed, plunge_feed, spindle, header, blend=None, tool=None):
+def _program(toolpath, feed, plunge_feed, spindle, header, blend=None, tool=None, coolant=None):
     from conformill import __version__
 
     control = path_control(blend)
     tool = tool_number(tool)
+    if coolant is not None and coolant not in COOLANTS:
+        raise PlanningError(f"G-code: coolant must be one of {', '.join(COOLANTS)}, got {coolant!r}")
     feed = _positive("feed", feed)
     plunge = feed if plunge_feed is None else _positive("plunge_feed", plunge_feed)
     if spindle is not None:
@@ -341,6 +351,8 @@ def _program(toolpath, feed, plunge_feed, spindle, header, blend=None, tool=None
     if spindle is not None:
         s = int(spindle) if float(spindle).is_integer() else spindle
         lines.append(f"M3 S{s}" if isinstance(s, int) else f"M3 S{s:.1f}")
+    if coolant is not None:
+        lines.append(COOLANTS[coolant])
     lines.append(f"G0 Z{safe_s}")
 
     fw_feed = _feed_word(feed)
@@ -423,6 +435,8 @@ def _program(toolpath, feed, plunge_feed, spindle, header, blend=None, tool=None
             lines.append(f"G0 Z{_num(up_t)}")
         rapid_len += (up_t - int(last[2])) / _SCALE
         prev_xy = (int(last[0]), int(last[1]))
+    if coolant is not None:
+        lines.append("M9")
     lines.append("M5")
     lines.append("M30")
     n_lines += len(lines)

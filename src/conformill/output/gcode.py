@@ -161,7 +161,7 @@ def _positive(name, value):
     return v
 
 
-#: Coolant words (``coolant``): on, and the one that turns it off.
+#: The words that turn the coolant on (``coolant``); ``M9`` turns either off.
 COOLANTS = {"flood": "M8", "mist": "M7"}
 
 #: Largest path tolerance written (mm): beyond it ``G64 P`` no longer bounds anything.

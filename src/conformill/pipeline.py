@@ -17,7 +17,7 @@ import numpy as np
 from conformill import __version__
 from conformill.errors import PlanningError
 from conformill.geometry.surface import DomainSurface
-from conformill.output.gcode import COOLANTS, path_control, tool_number
+from conformill.output.gcode import coolant_on, path_control, tool_number
 from conformill.patterns.family import Planner
 from conformill.passes import PassBuilder, threads_can_overlap
 from conformill.planning.steps import check_params, side_interval
@@ -144,7 +144,8 @@ class Job:
         machine's tool table (``G43 H N``); None (default): the tool tip is touched off and
         the program keeps any length offset cancelled (``G49``).
     coolant : {"flood", "mist"} or None
-        Coolant on after the spindle starts (``M8`` / ``M7``) and off at the end (``M9``);
+        Coolant on before the first move, after the spindle start when ``spindle`` is given
+        (``M8`` / ``M7``), and off at the end (``M9``);
         None (default): the program leaves the coolant to the operator.
     """
 
@@ -245,17 +246,16 @@ def check_job(job: Job) -> None:
         raise PlanningError(f"hop-lifted must be a number >= 0 (mm; 0: off), got {job.hop_lift}")
     if isinstance(job.blend, str) and job.blend != "off":
         raise PlanningError(f"blend must be a number >= 0 (mm) or 'off', got {job.blend!r}")
-    b = job.blend_tolerance
-    if b is not None and not isinstance(b, (bool, str)) and np.isfinite(b) and b > job.tool_radius:
-        raise PlanningError(f"blend {b:g} mm is larger than the tool radius {job.tool_radius:g} mm: the controller "
-                            f"could round the path's corners by more than the ball")
-    try:
+    try:  # the writer's own checks, refused before any work
         path_control(job.blend_tolerance)
         tool_number(job.tool_number)
-        if job.coolant is not None and job.coolant not in COOLANTS:
-            raise PlanningError(f"coolant must be one of {', '.join(COOLANTS)}, got {job.coolant!r}")
+        coolant_on(job.coolant)
     except PlanningError as exc:
         raise PlanningError(str(exc).replace("G-code: ", "", 1)) from None
+    b = job.blend_tolerance  # None, or a number path_control took
+    if b is not None and b > job.tool_radius:
+        raise PlanningError(f"blend {b:g} mm is larger than the tool radius {job.tool_radius:g} mm: the controller "
+                            f"could round the path's corners by more than the ball")
 
 
 def face_normals(V: np.ndarray, F: np.ndarray):

@@ -81,7 +81,8 @@ def add_arguments(p) -> None:
                    help="change to tool N and apply its length from the machine's tool table (T N M6, G43 H N); "
                         "default: none, the tool tip is touched off (the program cancels length offsets, G49)")
     p.add_argument("--coolant", choices=["flood", "mist"], default=None,
-                   help="turn the coolant on after the spindle starts (flood: M8, mist: M7) and off at the end (M9); "
+                   help="turn the coolant on before the first move, after the spindle start when --spindle is given "
+                        "(flood: M8, mist: M7), and off at the end (M9); "
                         "default: no coolant words")
     p.add_argument("--max-step", type=float, default=10.0, metavar="L", help="longest forward step, mm (10)")
     p.add_argument("--threads", type=int, default=None, metavar="N",

@@ -61,7 +61,7 @@ from numba import njit
 from conformill.errors import OutputError, PlanningError
 from conformill.output.atomic import atomic_path
 
-__all__ = ["COOLANTS", "format_gcode", "path_control", "tool_number", "write_gcode"]
+__all__ = ["COOLANTS", "coolant_on", "format_gcode", "path_control", "tool_number", "write_gcode"]
 
 #: Decimal places of coordinates (mm).
 DECIMALS = 4
@@ -95,7 +95,8 @@ def format_gcode(toolpath, *, feed: float, plunge_feed: float | None = None,
         Tool number N >= 1: ``T N M6`` and ``G43 H N`` (its length from the tool table);
         None: the tip is touched off (``G49`` stays in force).
     coolant : {"flood", "mist"}, optional
-        ``M8`` (flood) or ``M7`` (mist) after the spindle starts, ``M9`` before it stops;
+        ``M8`` (flood) or ``M7`` (mist) before the first move (after ``M3``, when a spindle
+        speed is given), ``M9`` at the end, before ``M5``;
         None: no coolant words.
 
     Returns
@@ -196,6 +197,21 @@ def path_control(blend) -> str | None:
         raise PlanningError(f"G-code: blend {b!r} mm is below the 1e-6 mm that can be written; use 0 for exact path")
     q, r = divmod(micro, 10**6)
     return f"G64 P{q}" + (f".{r:06d}".rstrip("0") if r else "") + " Q0"
+
+
+def coolant_on(coolant) -> str | None:
+    """The word that turns ``coolant`` on (:data:`COOLANTS`), None for None.
+
+    Raises
+    ------
+    PlanningError
+        An unknown kind.
+    """
+    if coolant is None:
+        return None
+    if not isinstance(coolant, str) or coolant not in COOLANTS:
+        raise PlanningError(f"G-code: coolant must be one of {', '.join(COOLANTS)}, got {coolant!r}")
+    return COOLANTS[coolant]
 
 
 def tool_number(tool) -> int | None:
@@ -315,8 +331,7 @@ def _program(toolpath, feed, plunge_feed, spindle, header, blend=None, tool=None
 
     control = path_control(blend)
     tool = tool_number(tool)
-    if coolant is not None and coolant not in COOLANTS:
-        raise PlanningError(f"G-code: coolant must be one of {', '.join(COOLANTS)}, got {coolant!r}")
+    coolant = coolant_on(coolant)
     feed = _positive("feed", feed)
     plunge = feed if plunge_feed is None else _positive("plunge_feed", plunge_feed)
     if spindle is not None:
@@ -352,7 +367,7 @@ def _program(toolpath, feed, plunge_feed, spindle, header, blend=None, tool=None
         s = int(spindle) if float(spindle).is_integer() else spindle
         lines.append(f"M3 S{s}" if isinstance(s, int) else f"M3 S{s:.1f}")
     if coolant is not None:
-        lines.append(COOLANTS[coolant])
+        lines.append(coolant)
     lines.append(f"G0 Z{safe_s}")
 
     fw_feed = _feed_word(feed)

@@ -378,8 +378,6 @@ def read_gcode(source, chord_tol: float = 0.001, start=None, block_delete: bool 
             arc = _arc_points(p0, p1, centre, mode == 2, turns, chord_tol, 0.05, lineno, raw)
             pts.append(arc)
             mot.append(np.full(len(arc), FEED, dtype=np.int8))
-            if path_mode not in path_modes:
-                path_modes.append(path_mode)
             lin.append(np.full(len(arc), lineno, dtype=np.int64))
             fed.append(np.full(len(arc), feed))
         else:
@@ -387,10 +385,10 @@ def read_gcode(source, chord_tol: float = 0.001, start=None, block_delete: bool 
                 raise _error(lineno, raw, f"arc words on a G{mode} move")
             pts.append(np.array([target]))
             mot.append(np.array([RAPID if mode == 0 else FEED], dtype=np.int8))
-            if mode != 0 and path_mode not in path_modes:
-                path_modes.append(path_mode)
             lin.append(np.array([lineno], dtype=np.int64))
             fed.append(np.array([feed]))
+        if mode != 0 and path_mode not in path_modes:  # a feed move (G1, or an arc)
+            path_modes.append(path_mode)
         pos = target
 
     if pts:

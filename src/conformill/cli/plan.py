@@ -7,7 +7,7 @@ import sys
 import time
 
 from conformill.cli.progress import StageProgress, sample_bar
-from conformill.errors import PlanningError
+from conformill.errors import ConformillError, PlanningError
 
 
 def add_arguments(p) -> None:
@@ -84,6 +84,14 @@ def add_arguments(p) -> None:
                    help="turn the coolant on before the first move, after the spindle start when --spindle is given "
                         "(flood: M8, mist: M7), and off at the end (M9); "
                         "default: no coolant words")
+    p.add_argument("--holder-radius", type=float, default=None, metavar="R",
+                   help="radius of the tool holder (its widest part that can come down to the part), mm: check the "
+                        "written program and report the stick-out (tip to holder face) it needs for the holder to "
+                        "clear the part on every move")
+    p.add_argument("--stick-out", type=float, default=None, metavar="L",
+                   help="with --holder-radius: the tool's stick-out, mm; a program on which the holder may meet the "
+                        "part is refused (exit 3, nothing written), naming the first line and the stick-out that "
+                        "clears")
     p.add_argument("--max-step", type=float, default=10.0, metavar="L", help="longest forward step, mm (10)")
     p.add_argument("--threads", type=int, default=None, metavar="N",
                    help="threads for parallel stages (default all; with 1 the cutter runs after the pattern stage, "
@@ -148,6 +156,11 @@ def run(args) -> int:
     from conformill.pipeline import check_job
 
     check_job(job)
+    if args.stick_out is not None and args.holder_radius is None:
+        raise ConformillError("--stick-out needs --holder-radius (the holder whose clearance it sets)")
+    from conformill.verify.holder import check_holder
+
+    check_holder(args.holder_radius, args.stick_out, job.tool_radius)
     if args.verify_scallop is not None:  # asking for a judged height is asking for the check
         args.verify = True
     if args.verify and args.verify_samples < 1:
@@ -202,6 +215,9 @@ def _run_job(args, job, judge_h: float) -> int:
             header["pencil"] += f", where the pattern leaves above {job.pencil_left:g} H"
     if job.hop_lift > 0:  # likewise
         header["hop lifted"] = f"runs lifted more than {job.hop_lift:g} mm, rapid {job.rapid:g}"
+    if args.holder_radius is not None:  # likewise
+        header["holder"] = f"radius {args.holder_radius:g}" + (
+            "" if args.stick_out is None else f", stick-out {args.stick_out:g}: checked to clear the part")
     with all_or_nothing(args.output, args.report, args.plot, args.html):
         t = time.perf_counter()
         stats = write_gcode(args.output, result.toolpath, feed=job.feed, plunge_feed=job.plunge_rate,
@@ -216,11 +232,15 @@ def _run_job(args, job, judge_h: float) -> int:
             plot_plan(args.plot, result)
             report["timings_s"]["plot"] = time.perf_counter() - t
         program = None
-        if args.verify or args.html:
+        if args.verify or args.html or args.holder_radius is not None:
             from conformill.verify.gcode import read_gcode
 
             # the checks and the viewer use the program as written: what the machine will run
             program = read_gcode(args.output)
+        if args.holder_radius is not None:
+            t = time.perf_counter()
+            report["holder"] = _holder(result.mesh, program, args.holder_radius, args.stick_out)
+            report["timings_s"]["holder"] = time.perf_counter() - t
         if args.verify:
             t = time.perf_counter()
             report["verify"] = _verify(result.mesh, program, job, args.verify_samples, args.quiet, judge_h)
@@ -250,6 +270,20 @@ def _run_job(args, job, judge_h: float) -> int:
     if args.verify and not report["verify"]["pass"]:
         return 1  # the files are kept for inspection; the check failed
     return 0
+
+
+def _holder(mesh, program, radius: float, stick_out: float | None) -> dict:
+    """The holder check on the program as written (:mod:`conformill.verify.holder`): its
+    figures, or :class:`PlanningError` when the holder may meet the part at ``stick_out``."""
+    from conformill.cli.verify import holder_failure
+    from conformill.verify.holder import holder_clearance
+
+    h = holder_clearance(mesh.V, mesh.F, program, radius, stick_out=stick_out).summary(stick_out)
+    if stick_out is not None and not h["clear"]:
+        raise PlanningError(f"holder R{radius:g} at stick-out {stick_out:g} mm: {holder_failure(h)} "
+                            f"(the part at ({', '.join(f'{x:.3f}' for x in h['worst_part'])}) within R of the move on "
+                            f"line {h['worst_line']}); nothing written")
+    return h
 
 
 SCALLOP_SLACK = 1.05
@@ -336,6 +370,11 @@ def _summary(rep: dict, out: str) -> None:
         f"  reachability      undercut {100 * rep['reachability']['undercut_share']:.2f}%, concave below R "
         f"{100 * rep['reachability']['concave_below_tool_radius_share']:.2f}%",
     ]
+    if "holder" in rep:
+        h = rep["holder"]
+        lines.append(f"  holder            R{h['radius']:g} needs a stick-out of {h['needed_stick_out']:.3f} mm "
+                     f"(line {h['worst_line']})" + ("" if h.get("stick_out") is None else
+                                                    f"; {h['stick_out']:g} mm clears it by {h['clearance']:.3f} mm"))
     if "verify" in rep:
         v = rep["verify"]
         s = v.get("scallop", {})

@@ -46,6 +46,13 @@ def add_arguments(parser) -> None:
                         help="with --scallop: search the ball positions at every reachable sample left above H "
                              "and report the program's own share above the least material any ball leaves; "
                              "pass/fail does not change")
+    parser.add_argument("--holder-radius", type=float, default=None, metavar="R",
+                        help="radius of the tool holder (its widest part that can come down to the part), mm: "
+                             "report the stick-out (tip to holder face) the program needs for the holder to "
+                             "clear the part on every move, and where it comes closest")
+    parser.add_argument("--stick-out", type=float, default=None, metavar="L",
+                        help="with --holder-radius: the tool's stick-out, mm; fail when the holder may meet the "
+                             "part on any move")
     parser.add_argument("--report", default=None, metavar="OUT.json", help="write a JSON report")
     parser.add_argument("--plot", default=None, metavar="OUT.png", help="write a PNG heat map")
 
@@ -131,13 +138,44 @@ def table(summary: dict) -> str:
         if "unset" in modes:
             out.append("  unset: the machine's own mode applies (LinuxCNC's G64 without P may round corners by any "
                        "amount)")
-    if g["thresholds"]["scallop"] is not None or g["thresholds"]["gouge"] is not None:
+    if g.get("holder") is not None:
+        out.append(holder_text(g["holder"]))
+    if (g["thresholds"]["scallop"] is not None or g["thresholds"]["gouge"] is not None
+            or (g.get("holder") or {}).get("stick_out") is not None):
         out.append("PASS" if g["pass"] else "FAIL: " + "; ".join(g["failures"]))
     return "\n".join(out)
 
 
+def _xyz(p) -> str:
+    return "(" + ", ".join(f"{x:.3f}" for x in p) + ")"
+
+
+def holder_text(h: dict) -> str:
+    """The holder check's figures (:meth:`conformill.verify.holder.HolderCheck.summary`) in a
+    line or two of text."""
+    text = f"holder R{h['radius']:g}: needs a stick-out of {h['needed_stick_out']:.3f} mm"
+    if h["worst_line"] is not None and h["worst_part"] is not None:
+        text += (f" (the part at {_xyz(h['worst_part'])} within R of the move on line {h['worst_line']}, "
+                 f"tip {_xyz(h['worst_tip'])})")
+    if h.get("stick_out") is not None:
+        if h["clear"]:
+            text += f"\n  stick-out {h['stick_out']:g} mm: clears the part by {h['clearance']:.3f} mm"
+        else:
+            text += (f"\n  stick-out {h['stick_out']:g} mm: {holder_failure(h)}")
+    return text
+
+
+def holder_failure(h: dict) -> str:
+    """Why a stick-out fails: how many moves, from which line, and what would clear."""
+    sure = (f"{h['moves_hit']} of them certainly" if h["moves_hit"] else "none certainly: within the "
+            f"{h['needed_stick_out'] - h['needed_lower']:.3f} mm the bounds leave")
+    return (f"the holder may meet the part on {h['moves_may_hit']} moves ({sure}), the first on line "
+            f"{h['first_line']}; a stick-out of at least {h['needed_stick_out']:.3f} mm clears it")
+
+
 def run(args) -> int:
     from conformill.output.atomic import check_writable
+    from conformill.verify.holder import check_holder
 
     _positive("--tool-radius", args.tool_radius)
     _positive("--scallop", args.scallop, allow_zero=True)
@@ -147,6 +185,9 @@ def run(args) -> int:
     _positive("--chord-tol", args.chord_tol)
     if args.samples < 1:
         raise ConformillError(f"--samples must be >= 1, got {args.samples}")
+    if args.stick_out is not None and args.holder_radius is None:
+        raise ConformillError("--stick-out needs --holder-radius (the holder whose clearance it sets)")
+    check_holder(args.holder_radius, args.stick_out, args.tool_radius)
     if args.rest and args.scallop is None:
         raise ConformillError("--rest needs --scallop (the rest is searched where more than H is left)")
     check_writable(args.report, args.plot)
@@ -173,8 +214,17 @@ def _check(args) -> int:
         res = verify(mesh, program, args.tool_radius, n_samples=args.samples, seed=args.seed,
                      scallop=args.scallop, gouge=args.gouge, normals=args.normals, judge=args.judge,
                      progress=update, rest=args.rest, reach_depth=args.reach_depth)
-    seconds = time.perf_counter() - t0
     summary = dict(res.summary)
+    if args.holder_radius is not None:
+        from conformill.verify.holder import holder_clearance
+
+        h = holder_clearance(mesh.V, mesh.F, program, args.holder_radius, stick_out=args.stick_out)
+        summary["holder"] = h.summary(args.stick_out)
+        if args.stick_out is not None and not summary["holder"]["clear"]:
+            summary["failures"] = [*summary["failures"], f"holder R{args.holder_radius:g} at stick-out "
+                                   f"{args.stick_out:g} mm: {holder_failure(summary['holder'])}"]
+            summary["pass"] = False
+    seconds = time.perf_counter() - t0
     summary.update(mesh=mesh.name, program=program.source, faces=mesh.n_faces, scale=args.scale, seconds=seconds,
                    path_control=list(program.path_modes))
     if args.report:

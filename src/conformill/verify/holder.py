@@ -1,0 +1,422 @@
+"""Holder clearance: the stick-out a program needs so that the tool holder never meets the part.
+
+A 3-axis ball-end tool is the ball, its shank (radius ``r``, the drop-cutter's concern) and,
+``L`` above the tip (the *stick-out*, gauge line to tip), a holder: here a cylinder of radius
+``R`` (> ``r``, the holder's widest radius) that reaches up without end. Along a move from
+``a`` to ``b`` the tip is at ``t(s) = a + s (b - a)``, ``s`` in ``[0, 1]``, and the holder's
+face at ``t_z(s) + L``. A part point ``p`` within ``R`` of the tool axis in XY meets the
+holder unless ``p_z <= t_z(s) + L`` for every ``s`` at which it is within reach:
+
+    L  >=  need(move) = max over p, s with |p_xy - t_xy(s)| <= R  of  p_z - t_z(s).
+
+The program needs the largest ``need`` over its moves (rapids, plunges and hops included).
+
+Bounds, not a sampling
+----------------------
+Over a triangle mesh this module brackets ``need`` per move:
+
+- *lower* (exact for the points it looks at): over the mesh vertices within ``R`` of the
+  move's XY segment, ``v_z - min t_z(s)`` over the ``s`` where the vertex is within reach
+  (an interval, in closed form; ``t_z`` is linear, so the minimum is at one of its ends).
+  Every vertex is a point of the part, so ``L`` below this certainly hits.
+- *upper*: over the triangles whose XY projection comes within ``R`` of the segment (exact
+  2D segment-triangle distance), the triangle's highest vertex minus the move's lower end.
+  It exceeds the truth by at most the z-extent of the triangle the holder only partly
+  reaches plus the move's own climb, so ``L`` at or above it certainly clears.
+
+A program is judged clear when the stick-out is at least the upper bound; the report gives
+both, and where (the move's source line, the tip, and the highest vertex). The holder's
+taper, the spindle nose and the machine's travel are not modelled: give the radius of the
+widest part within the length that can come down to the part.
+
+Nothing here imports the planner: the check reads the program as written
+(:class:`conformill.verify.gcode.Program`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numba as nb
+import numpy as np
+
+from conformill.errors import ConformillError
+from conformill.verify.gcode import Program
+
+__all__ = ["HolderCheck", "holder_clearance"]
+
+
+@nb.njit(cache=True, inline="always")
+def _pt_seg_d2(px, py, ax, ay, bx, by):
+    dx, dy = bx - ax, by - ay
+    dd = dx * dx + dy * dy
+    s = 0.0
+    if dd > 0.0:
+        s = min(1.0, max(0.0, ((px - ax) * dx + (py - ay) * dy) / dd))
+    ex, ey = ax + s * dx - px, ay + s * dy - py
+    return ex * ex + ey * ey
+
+
+@nb.njit(cache=True, inline="always")
+def _orient(ax, ay, bx, by, cx, cy):
+    return (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
+
+
+@nb.njit(cache=True, inline="always")
+def _seg_seg_d2(ax, ay, bx, by, cx, cy, dx, dy):
+    """Squared distance between the 2D segments ab and cd (0 when they cross)."""
+    o1 = _orient(ax, ay, bx, by, cx, cy)
+    o2 = _orient(ax, ay, bx, by, dx, dy)
+    o3 = _orient(cx, cy, dx, dy, ax, ay)
+    o4 = _orient(cx, cy, dx, dy, bx, by)
+    if ((o1 > 0.0 and o2 < 0.0) or (o1 < 0.0 and o2 > 0.0)) and ((o3 > 0.0 and o4 < 0.0) or (o3 < 0.0 and o4 > 0.0)):
+        return 0.0
+    return min(min(_pt_seg_d2(ax, ay, cx, cy, dx, dy), _pt_seg_d2(bx, by, cx, cy, dx, dy)),
+               min(_pt_seg_d2(cx, cy, ax, ay, bx, by), _pt_seg_d2(dx, dy, ax, ay, bx, by)))
+
+
+@nb.njit(cache=True, inline="always")
+def _inside(px, py, x0, y0, x1, y1, x2, y2):
+    d0 = _orient(x0, y0, x1, y1, px, py)
+    d1 = _orient(x1, y1, x2, y2, px, py)
+    d2 = _orient(x2, y2, x0, y0, px, py)
+    neg = d0 < 0.0 or d1 < 0.0 or d2 < 0.0
+    pos = d0 > 0.0 or d1 > 0.0 or d2 > 0.0
+    return not (neg and pos)
+
+
+@nb.njit(cache=True, inline="always")
+def _disk_span(wx, wy, ex, ey, R2):
+    """The u in [0, 1] with |w + u e| <= R (an interval; empty when lo > hi)."""
+    ee = ex * ex + ey * ey
+    ww = wx * wx + wy * wy
+    if ee <= 1e-24:
+        return (0.0, 1.0) if ww <= R2 else (2.0, -1.0)
+    we = wx * ex + wy * ey
+    disc = we * we - ee * (ww - R2)
+    if disc < 0.0:
+        return 2.0, -1.0
+    sq = math.sqrt(disc)
+    return max(0.0, (-we - sq) / ee), min(1.0, (-we + sq) / ee)
+
+
+@nb.njit(cache=True, inline="always")
+def _lin_span(alpha, beta, lo, hi, u0, u1):
+    """Narrow [u0, u1] to the u with lo <= alpha + beta u <= hi."""
+    if abs(beta) <= 1e-300:
+        return (u0, u1) if lo <= alpha <= hi else (2.0, -1.0)
+    a, b = (lo - alpha) / beta, (hi - alpha) / beta
+    if a > b:
+        a, b = b, a
+    return max(u0, a), min(u1, b)
+
+
+@nb.njit(cache=True)
+def _edge_span(px, py, qx, qy, ax, ay, bx, by, R):
+    """The part u in [0, 1] of the edge p + u (q - p) within XY distance R of segment ab: the
+    union of its spans in the disks around a and b and in the band between them (an
+    interval, the capsule being convex; empty when lo > hi)."""
+    ex, ey = qx - px, qy - py
+    R2 = R * R
+    lo, hi = 2.0, -1.0
+    s0, s1 = _disk_span(px - ax, py - ay, ex, ey, R2)
+    if s0 <= s1:
+        lo, hi = min(lo, s0), max(hi, s1)
+    s0, s1 = _disk_span(px - bx, py - by, ex, ey, R2)
+    if s0 <= s1:
+        lo, hi = min(lo, s0), max(hi, s1)
+    dx, dy = bx - ax, by - ay
+    dd = dx * dx + dy * dy
+    if dd > 1e-24:
+        wx, wy = px - ax, py - ay
+        s0, s1 = _lin_span((wx * dx + wy * dy) / dd, (ex * dx + ey * dy) / dd, 0.0, 1.0, 0.0, 1.0)
+        nd = math.sqrt(dd)
+        s0, s1 = _lin_span((dx * wy - dy * wx) / nd, (dx * ey - dy * ex) / nd, -R, R, s0, s1)
+        if s0 <= s1:
+            lo, hi = min(lo, s0), max(hi, s1)
+    return lo, hi
+
+
+@nb.njit(cache=True, inline="always")
+def _need(px, py, pz, ax, ay, az, dx, dy, dz, dd, R2):
+    """``p_z - min t_z(s)`` over the s at which the point p (within reach of the move, up to
+    rounding) is within R of the tip: the ends of that interval, t_z being linear."""
+    if dd <= 1e-24:
+        return pz - min(az, az + dz)
+    wx, wy = px - ax, py - ay
+    wd = wx * dx + wy * dy
+    disc = max(0.0, wd * wd - dd * (wx * wx + wy * wy - R2))
+    sq = math.sqrt(disc)
+    s0, s1 = max(0.0, (wd - sq) / dd), min(1.0, (wd + sq) / dd)
+    if s0 > s1:  # at the rim, by rounding: the nearest s
+        s0 = s1 = min(1.0, max(0.0, wd / dd))
+    return pz - min(az + s0 * dz, az + s1 * dz)
+
+
+@nb.njit(cache=True)
+def _tri_need(t, V, F, R, ax, ay, az, bx, by, bz):
+    """Over the points of triangle t within XY distance R of the move ab: the largest ``p_z``
+    less the move's lowest tip (upper bound of its need), and the largest exact need
+    (:func:`_need`) at the points where ``p_z`` can be largest: the ends of the edges' spans
+    in reach, and the capsule's support points in the direction z climbs, where inside t
+    (the maximum of a linear function over the convex set t ∩ capsule is at one of them)."""
+    dx, dy, dz = bx - ax, by - ay, bz - az
+    dd = dx * dx + dy * dy
+    R2 = R * R
+    tipmin = min(az, bz)
+    hi, lo, hx, hy, hz = -np.inf, -np.inf, 0.0, 0.0, 0.0
+    for q in range(3):
+        p0, p1 = F[t, q], F[t, (q + 1) % 3]
+        px, py, pz = V[p0, 0], V[p0, 1], V[p0, 2]
+        ex, ey, ez = V[p1, 0] - px, V[p1, 1] - py, V[p1, 2] - pz
+        u0, u1 = _edge_span(px, py, px + ex, py + ey, ax, ay, bx, by, R)
+        if u0 > u1:
+            continue
+        for u in (u0, u1):
+            cx, cy, cz = px + u * ex, py + u * ey, pz + u * ez
+            if cz - tipmin > hi:
+                hi, hx, hy, hz = cz - tipmin, cx, cy, cz
+            lo = max(lo, _need(cx, cy, cz, ax, ay, az, dx, dy, dz, dd, R2))
+    f0, f1, f2 = F[t, 0], F[t, 1], F[t, 2]
+    x0, y0, z0 = V[f0, 0], V[f0, 1], V[f0, 2]
+    x1, y1, z1 = V[f1, 0], V[f1, 1], V[f1, 2]
+    x2, y2, z2 = V[f2, 0], V[f2, 1], V[f2, 2]
+    nx = (y1 - y0) * (z2 - z0) - (z1 - z0) * (y2 - y0)
+    ny = (z1 - z0) * (x2 - x0) - (x1 - x0) * (z2 - z0)
+    nz = (x1 - x0) * (y2 - y0) - (y1 - y0) * (x2 - x0)
+    g = math.sqrt(nx * nx + ny * ny)
+    if nz != 0.0 and g > 0.0:  # not vertical (its edges hold its top then), not level
+        sgn = -1.0 if nz > 0.0 else 1.0
+        gx, gy = sgn * nx / g, sgn * ny / g
+        zlo, ztop = min(z0, min(z1, z2)), max(z0, max(z1, z2))
+        for k in range(2):
+            cx = (ax if k == 0 else bx) + R * gx
+            cy = (ay if k == 0 else by) + R * gy
+            if _inside(cx, cy, x0, y0, x1, y1, x2, y2):
+                cz = min(ztop, max(zlo, z0 - (nx * (cx - x0) + ny * (cy - y0)) / nz))
+                if cz - tipmin > hi:
+                    hi, hx, hy, hz = cz - tipmin, cx, cy, cz
+                lo = max(lo, _need(cx, cy, cz, ax, ay, az, dx, dy, dz, dd, R2))
+    return hi, lo, hx, hy, hz
+
+
+@nb.njit(cache=True)
+def _piece(ax, ay, az, bx, by, bz, V, F, ttop, R, lox, loy, cell, nx, ny, cstart, ctri, ctop, out):
+    """Bounds of the need of one straight piece ab: ``out = (lower, upper, x, y, z)``, the
+    point being where the upper bound is reached."""
+    tipmin = min(az, bz)
+    lo_l, hi_u = out[0], out[1]
+    i0 = max(0, int(math.floor((min(ax, bx) - R - lox) / cell)))
+    i1 = min(nx - 1, int(math.floor((max(ax, bx) + R - lox) / cell)))
+    j0 = max(0, int(math.floor((min(ay, by) - R - loy) / cell)))
+    j1 = min(ny - 1, int(math.floor((max(ay, by) + R - loy) / cell)))
+    half = 0.7072 * cell  # a cell's half diagonal, rounded up
+    for ci in range(i0, i1 + 1):
+        for cj in range(j0, j1 + 1):
+            c = ci * ny + cj
+            if cstart[c] == cstart[c + 1] or ctop[c] - tipmin <= hi_u:
+                continue
+            mx, my = lox + (ci + 0.5) * cell, loy + (cj + 0.5) * cell
+            if _pt_seg_d2(mx, my, ax, ay, bx, by) > (R + half) * (R + half):
+                continue
+            for k in range(cstart[c], cstart[c + 1]):  # highest triangle first
+                t = ctri[k]
+                if ttop[t] - tipmin <= hi_u:
+                    break
+                hi, lo, hx, hy, hz = _tri_need(t, V, F, R, ax, ay, az, bx, by, bz)
+                if hi > hi_u:
+                    hi_u = hi
+                    out[2], out[3], out[4] = hx, hy, hz
+                lo_l = max(lo_l, lo)
+    out[0], out[1] = lo_l, hi_u
+
+
+@nb.njit(cache=True)
+def _one(i, A, B, V, F, ttop, R, dz_max, lox, loy, cell, nx, ny, cstart, ctri, ctop, out):
+    """Move i, cut into pieces that climb at most ``dz_max`` where it travels in XY too (the
+    upper bound takes a piece's lowest tip: that bounds its excess over the need)."""
+    ax, ay, az = A[i, 0], A[i, 1], A[i, 2]
+    dx, dy, dz = B[i, 0] - ax, B[i, 1] - ay, B[i, 2] - az
+    m = 1
+    if dx * dx + dy * dy > 1e-24 and abs(dz) > dz_max:
+        m = int(math.ceil(abs(dz) / dz_max))
+    out[i, 0], out[i, 1] = 0.0, 0.0
+    out[i, 2], out[i, 3], out[i, 4] = np.nan, np.nan, np.nan
+    for j in range(m):
+        s0, s1 = j / m, (j + 1) / m
+        _piece(ax + s0 * dx, ay + s0 * dy, az + s0 * dz, ax + s1 * dx, ay + s1 * dy, az + s1 * dz, V, F, ttop, R,
+               lox, loy, cell, nx, ny, cstart, ctri, ctop, out[i])
+
+
+@nb.njit(cache=True, parallel=True)
+def _all(which, A, B, V, F, ttop, R, dz_max, lox, loy, cell, nx, ny, cstart, ctri, ctop, out):
+    for j in nb.prange(which.shape[0]):
+        _one(which[j], A, B, V, F, ttop, R, dz_max, lox, loy, cell, nx, ny, cstart, ctri, ctop, out)
+
+
+def _grid(V, F, cell):
+    """Triangles by XY cell (every cell their XY box overlaps), highest top first in a cell."""
+    lo = V[:, :2].min(axis=0)
+    n = np.maximum(1, np.ceil((V[:, :2].max(axis=0) - lo) / cell).astype(np.int64) + 1)
+    T = V[F]
+    ttop = T[:, :, 2].max(axis=1)
+    c0 = np.floor((T[:, :, :2].min(axis=1) - lo) / cell).astype(np.int64)
+    c1 = np.floor((T[:, :, :2].max(axis=1) - lo) / cell).astype(np.int64)
+    wx, wy = c1[:, 0] - c0[:, 0] + 1, c1[:, 1] - c0[:, 1] + 1
+    cnt = wx * wy
+    tri = np.repeat(np.arange(len(F)), cnt)
+    k = np.arange(cnt.sum()) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+    cx = c0[tri, 0] + k // wy[tri]
+    cy = c0[tri, 1] + k % wy[tri]
+    key = cx * n[1] + cy
+    order = np.lexsort((-ttop[tri], key))
+    key, tri = key[order], tri[order]
+    cstart = np.zeros(n[0] * n[1] + 1, dtype=np.int64)
+    np.cumsum(np.bincount(key, minlength=n[0] * n[1]), out=cstart[1:])
+    ctop = np.full(n[0] * n[1], -np.inf)
+    ctop[key[::-1]] = ttop[tri[::-1]]  # the first (highest) of each cell wins
+    return lo, n, ttop, cstart, tri, ctop
+
+
+@dataclass(frozen=True, eq=False)
+class HolderCheck:
+    """Stick-out a program needs for a holder of radius ``radius``, per move and in all.
+
+    Attributes
+    ----------
+    radius : float
+        Holder radius R, mm.
+    lower, upper : (k,) float64
+        Per move of the program, bounds of the stick-out it needs (mm, 0 where the part is
+        nowhere above the tip within R; module docstring).
+    line : (k,) int64
+        Each move's line in the program's source.
+    needed : float
+        ``upper.max()``: a stick-out at least this long clears the part on every move.
+    needed_lower : float
+        ``lower.max()``: a stick-out shorter than this hits the part.
+    worst_move : int
+        The move with the largest ``upper`` (-1 for an empty program).
+    worst_line : int or None
+        Its line in the program's source.
+    worst_tip : tuple of float or None
+        The tip at the lower end of that move (x, y, z).
+    worst_part : tuple of float or None
+        The highest vertex in reach of that move (x, y, z), or of its highest triangle.
+    """
+
+    radius: float
+    lower: np.ndarray
+    upper: np.ndarray
+    line: np.ndarray
+    needed: float
+    needed_lower: float
+    worst_move: int
+    worst_line: int | None
+    worst_tip: tuple | None
+    worst_part: tuple | None
+
+    def hits(self, stick_out: float) -> dict:
+        """What a stick-out of ``stick_out`` mm gives: clearance and the moves that may hit.
+
+        Returns
+        -------
+        dict
+            ``stick_out``, ``clearance`` (``stick_out - needed``: negative when the holder may
+            meet the part), ``moves_may_hit`` (moves whose ``upper`` exceeds it),
+            ``moves_hit`` (moves whose ``lower`` exceeds it: certain), ``first_line`` (the
+            source line of the first move that may hit, or None), ``clear`` (bool).
+        """
+        may = np.flatnonzero(self.upper > stick_out)
+        return {"stick_out": float(stick_out), "clearance": float(stick_out - self.needed),
+                "moves_may_hit": int(len(may)), "moves_hit": int((self.lower > stick_out).sum()),
+                "first_line": int(self.line[may[0]]) if len(may) else None, "clear": bool(len(may) == 0)}
+
+    def summary(self, stick_out: float | None = None) -> dict:
+        """The figures for a JSON report (``hits(stick_out)`` merged in when given)."""
+        out = {"radius": self.radius, "needed_stick_out": self.needed, "needed_lower": self.needed_lower,
+               "worst_line": self.worst_line, "worst_tip": self.worst_tip, "worst_part": self.worst_part}
+        if stick_out is not None:
+            out.update(self.hits(stick_out))
+        return out
+
+
+def check_holder(radius, stick_out=None, tool_radius=None) -> None:
+    """Refuse a holder radius or stick-out that is not a positive finite number, or a holder
+    not wider than the tool (bad input: exit code 2)."""
+    for name, v in (("holder radius", radius), ("stick-out", stick_out)):
+        if v is None:
+            continue
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+            raise ConformillError(f"the {name} must be a positive number of mm, got {v!r}")
+    if radius is not None and tool_radius is not None and radius <= tool_radius:
+        raise ConformillError(f"the holder radius ({radius:g} mm) must be larger than the tool radius "
+                              f"({tool_radius:g} mm): up to the holder the tool is the ball's shank, which the "
+                              f"drop-cutter already keeps clear")
+
+
+def holder_clearance(V, F, program: Program, radius: float, stick_out: float | None = None, climb: float = 0.01,
+                     cell: float | None = None) -> HolderCheck:
+    """Bounds of the stick-out each move of ``program`` needs for a holder of radius ``radius``.
+
+    Parameters
+    ----------
+    V : (n, 3) float64
+        Part vertices, mm (program coordinates; +Z is the tool axis).
+    F : (m, 3) int64
+        Triangles.
+    program : Program
+        The program as read (:func:`conformill.verify.gcode.read_gcode`); every move counts.
+    radius : float
+        Holder radius R, mm.
+    stick_out : float, optional
+        The stick-out to be judged (:meth:`HolderCheck.hits`): the moves whose bounds
+        straddle it are resolved to ``climb`` too.
+    climb : float
+        Moves that travel in XY and climb more than this (mm) are checked again in pieces
+        that climb at most this much, where they matter (their upper bound above the
+        largest lower bound, or their bounds straddling ``stick_out``): then ``needed``
+        exceeds the need by at most this, plus the rounding of the arithmetic.
+    cell : float, optional
+        XY grid cell of the triangle index (default ``max(R / 4, 2 x the mean edge)``).
+
+    Returns
+    -------
+    HolderCheck
+
+    Raises
+    ------
+    ConformillError
+        When ``radius`` is not a positive number.
+    """
+    check_holder(radius, stick_out)
+    V = np.ascontiguousarray(V, dtype=np.float64)
+    F = np.ascontiguousarray(F, dtype=np.int64)
+    A, B = program.segments(None)
+    k = len(A)
+    out = np.zeros((k, 5))
+    out[:, 2:] = np.nan
+    if k and len(F):
+        if cell is None:
+            edge = float(np.linalg.norm(V[F[:, 1], :2] - V[F[:, 0], :2], axis=1).mean())
+            cell = max(radius / 4.0, 2.0 * edge, 1e-6)
+        lo, n, ttop, cstart, ctri, ctop = _grid(V, F, cell)
+        A, B = np.ascontiguousarray(A), np.ascontiguousarray(B)
+        grid = (float(lo[0]), float(lo[1]), float(cell), int(n[0]), int(n[1]), cstart, ctri, ctop)
+        _all(np.arange(k), A, B, V, F, ttop, float(radius), np.inf, *grid, out)  # whole moves first
+        again = out[:, 1] > out[:, 0].max()
+        if stick_out is not None:
+            again |= (out[:, 0] <= stick_out) & (out[:, 1] > stick_out)
+        _all(np.flatnonzero(again), A, B, V, F, ttop, float(radius), float(climb), *grid, out)
+    lower, upper, at = out[:, 0].copy(), out[:, 1].copy(), out[:, 2:]
+    worst, line, tip, part = -1, None, None, None
+    if k:
+        worst = int(np.argmax(upper))
+        line = int(program.line[worst])
+        tip = tuple(float(x) for x in (A[worst] if A[worst, 2] <= B[worst, 2] else B[worst]))
+        if np.isfinite(at[worst, 0]):
+            part = tuple(float(x) for x in at[worst])
+    return HolderCheck(radius=float(radius), lower=lower, upper=upper, line=np.asarray(program.line),
+                       needed=float(upper.max()) if k else 0.0, needed_lower=float(lower.max()) if k else 0.0,
+                       worst_move=worst, worst_line=line, worst_tip=tip, worst_part=part)

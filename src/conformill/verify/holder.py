@@ -13,21 +13,30 @@ The program needs the largest ``need`` over its moves (rapids, plunges and hops 
 
 Bounds, not a sampling
 ----------------------
-Over a triangle mesh this module brackets ``need`` per move:
+Over a triangle mesh this module brackets ``need`` per move, in three passes:
 
-- *lower* (exact for the points it looks at): over the mesh vertices within ``R`` of the
-  move's XY segment, ``v_z - min t_z(s)`` over the ``s`` where the vertex is within reach
-  (an interval, in closed form; ``t_z`` is linear, so the minimum is at one of its ends).
-  Every vertex is a point of the part, so ``L`` below this certainly hits.
-- *upper*: over the triangles whose XY projection comes within ``R`` of the segment (exact
-  2D segment-triangle distance), the triangle's highest vertex minus the move's lower end.
-  It exceeds the truth by at most the z-extent of the triangle the holder only partly
-  reaches plus the move's own climb, so ``L`` at or above it certainly clears.
+1. *every move*: the highest triangle top over the cells of an XY raster (cell ``R / 16``)
+   within reach of the move's points, by a disk maximum filter of the raster: an upper bound
+   (it reaches about 1.7 cells further and takes whole triangles' tops);
+2. *the moves whose bound can hold the program's largest need*, highest bound first, over
+   the triangles whose XY projection comes within ``R`` of the move's segment: the exact
+   largest ``p_z`` of each triangle within reach (the maximum of a linear function over the
+   convex set triangle ∩ capsule lies at an end of an edge's span in reach or at a support
+   point of the capsule) less the move's lowest tip (upper bound), and at those same points
+   the exact need (lower bound: they are points of the part). A move that travels in XY and
+   climbs is then checked in pieces that climb at most ``climb`` (0.01 mm), so the two
+   bounds of the largest need meet within ``climb``;
+3. with a stick-out ``L``: the moves whose bounds straddle ``L``, likewise, stopping at the
+   first point of the part that certainly hits.
 
-A program is judged clear when the stick-out is at least the upper bound; the report gives
-both, and where (the move's source line, the tip, and the highest vertex). The holder's
-taper, the spindle nose and the machine's travel are not modelled: give the radius of the
-widest part within the length that can come down to the part.
+A program is judged clear when ``L`` is at least the largest upper bound; the report gives
+both bounds, and where (the move's source line, its lowest tip, and the point of the part).
+On the 620k-face igea program (886310 moves) the check takes 0.6-0.8 s on two cores for
+R = 8-25 mm, with or without a stick-out it clears; 7.7 s and 15 s for stick-outs that 22 %
+and 90 % of the moves cannot clear (README, "Holder clearance").
+
+The holder's taper, the spindle nose and the machine's travel are not modelled: give the
+radius of the widest part within the length that can come down to the part.
 
 Nothing here imports the planner: the check reads the program as written
 (:class:`conformill.verify.gcode.Program`).
@@ -202,9 +211,10 @@ def _tri_need(t, V, F, R, ax, ay, az, bx, by, bz):
 
 
 @nb.njit(cache=True)
-def _piece(ax, ay, az, bx, by, bz, V, F, ttop, R, lox, loy, cell, nx, ny, cstart, ctri, ctop, out):
+def _piece(ax, ay, az, bx, by, bz, V, F, ttop, R, stop, lox, loy, cell, nx, ny, cstart, ctri, ctop, out):
     """Bounds of the need of one straight piece ab: ``out = (lower, upper, x, y, z)``, the
-    point being where the upper bound is reached."""
+    point being where the upper bound is reached; it returns True as soon as the lower bound
+    passes ``stop`` (the bounds are then partial)."""
     tipmin = min(az, bz)
     lo_l, hi_u = out[0], out[1]
     i0 = max(0, int(math.floor((min(ax, bx) - R - lox) / cell)))
@@ -229,30 +239,93 @@ def _piece(ax, ay, az, bx, by, bz, V, F, ttop, R, lox, loy, cell, nx, ny, cstart
                     hi_u = hi
                     out[2], out[3], out[4] = hx, hy, hz
                 lo_l = max(lo_l, lo)
+                if lo_l > stop:
+                    out[0], out[1] = lo_l, hi_u
+                    return True
     out[0], out[1] = lo_l, hi_u
+    return False
 
 
 @nb.njit(cache=True)
-def _one(i, A, B, V, F, ttop, R, dz_max, lox, loy, cell, nx, ny, cstart, ctri, ctop, out):
+def _one(i, A, B, V, F, ttop, R, dz_max, floor, stop, lox, loy, cell, nx, ny, cstart, ctri, ctop, out):
     """Move i, cut into pieces that climb at most ``dz_max`` where it travels in XY too (the
-    upper bound takes a piece's lowest tip: that bounds its excess over the need)."""
+    upper bound takes a piece's lowest tip: that bounds its excess over the need). Only
+    needs above ``floor`` are looked for: ``out[i, :2]`` start there, so a bound left at
+    ``floor`` says only that the move's own is at most that. It stops once the lower bound
+    passes ``stop``."""
     ax, ay, az = A[i, 0], A[i, 1], A[i, 2]
     dx, dy, dz = B[i, 0] - ax, B[i, 1] - ay, B[i, 2] - az
     m = 1
     if dx * dx + dy * dy > 1e-24 and abs(dz) > dz_max:
         m = int(math.ceil(abs(dz) / dz_max))
-    out[i, 0], out[i, 1] = 0.0, 0.0
+    out[i, 0], out[i, 1] = floor, floor
     out[i, 2], out[i, 3], out[i, 4] = np.nan, np.nan, np.nan
     for j in range(m):
         s0, s1 = j / m, (j + 1) / m
-        _piece(ax + s0 * dx, ay + s0 * dy, az + s0 * dz, ax + s1 * dx, ay + s1 * dy, az + s1 * dz, V, F, ttop, R,
-               lox, loy, cell, nx, ny, cstart, ctri, ctop, out[i])
+        if _piece(ax + s0 * dx, ay + s0 * dy, az + s0 * dz, ax + s1 * dx, ay + s1 * dy, az + s1 * dz, V, F, ttop,
+                  R, stop, lox, loy, cell, nx, ny, cstart, ctri, ctop, out[i]):
+            return
 
 
 @nb.njit(cache=True, parallel=True)
-def _all(which, A, B, V, F, ttop, R, dz_max, lox, loy, cell, nx, ny, cstart, ctri, ctop, out):
+def _all(which, A, B, V, F, ttop, R, dz_max, floor, stop, lox, loy, cell, nx, ny, cstart, ctri, ctop, out):
     for j in nb.prange(which.shape[0]):
-        _one(which[j], A, B, V, F, ttop, R, dz_max, lox, loy, cell, nx, ny, cstart, ctri, ctop, out)
+        _one(which[j], A, B, V, F, ttop, R, dz_max, floor, stop, lox, loy, cell, nx, ny, cstart, ctri, ctop, out)
+
+
+@nb.njit(cache=True, parallel=True)
+def _coarse(A, B, D, lox, loy, cell, nx, ny, out):
+    """Upper bound of each move's highest part point within reach: the largest ``D`` (the
+    raster dilated by the reach, :func:`_dilated`) over the cells of points every
+    ``cell / 2`` along the move's XY segment."""
+    for i in nb.prange(A.shape[0]):
+        ax, ay = A[i, 0], A[i, 1]
+        dx, dy = B[i, 0] - ax, B[i, 1] - ay
+        m = int(math.ceil(math.sqrt(dx * dx + dy * dy) / (0.5 * cell))) + 1
+        best = -np.inf
+        for j in range(m):
+            s = j / (m - 1) if m > 1 else 0.0
+            ci = min(nx - 1, max(0, int(math.floor((ax + s * dx - lox) / cell))))
+            cj = min(ny - 1, max(0, int(math.floor((ay + s * dy - loy) / cell))))
+            best = max(best, D[ci, cj])
+        out[i] = best
+
+
+def _raster_tops(V, F, lo, n, cell):
+    """Highest triangle top over each cell (every cell a triangle's XY box overlaps)."""
+    T = V[F]
+    ttop = T[:, :, 2].max(axis=1)
+    c0 = np.floor((T[:, :, :2].min(axis=1) - lo) / cell).astype(np.int64)
+    c1 = np.floor((T[:, :, :2].max(axis=1) - lo) / cell).astype(np.int64)
+    wx, wy = c1[:, 0] - c0[:, 0] + 1, c1[:, 1] - c0[:, 1] + 1
+    cnt = wx * wy
+    tri = np.repeat(np.arange(len(F)), cnt)
+    k = np.arange(cnt.sum()) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+    top = np.full(n[0] * n[1], -np.inf)
+    np.maximum.at(top, (c0[tri, 0] + k // wy[tri]) * n[1] + c0[tri, 1] + k % wy[tri], ttop[tri])
+    return top.reshape(n[0], n[1])
+
+
+def _dilated(top, reach_cells: float):
+    """``D[c] = max top[c']`` over the cells ``c'`` whose centre lies within ``reach_cells``
+    cells of ``c``'s: a disk's maximum filter as one 1D filter along X per row offset."""
+    from scipy.ndimage import maximum_filter1d
+
+    D = top.copy()
+    K = int(math.floor(reach_cells))
+    rows = {}
+    for dy in range(-K, K + 1):
+        w = int(math.floor(math.sqrt(max(reach_cells * reach_cells - dy * dy, 0.0))))
+        if w not in rows:
+            rows[w] = maximum_filter1d(top, size=2 * w + 1, axis=0, mode="constant", cval=-np.inf)
+        M = rows[w]
+        if dy > 0:
+            np.maximum(D[:, :-dy], M[:, dy:], out=D[:, :-dy])
+        elif dy < 0:
+            np.maximum(D[:, -dy:], M[:, :dy], out=D[:, -dy:])
+        else:
+            np.maximum(D, M, out=D)
+    return D
 
 
 def _grid(V, F, cell):
@@ -288,8 +361,10 @@ class HolderCheck:
     radius : float
         Holder radius R, mm.
     lower, upper : (k,) float64
-        Per move of the program, bounds of the stick-out it needs (mm, 0 where the part is
-        nowhere above the tip within R; module docstring).
+        Per move of the program, bounds of the stick-out it needs (mm; module docstring).
+        ``upper`` always bounds the move's need from above (0: the part is nowhere above the
+        tip within R); ``lower`` from below, 0 where the move was not resolved (its upper
+        bound below the program's largest need and below the stick-out checked).
     line : (k,) int64
         Each move's line in the program's source.
     needed : float
@@ -394,22 +469,57 @@ def holder_clearance(V, F, program: Program, radius: float, stick_out: float | N
     V = np.ascontiguousarray(V, dtype=np.float64)
     F = np.ascontiguousarray(F, dtype=np.int64)
     A, B = program.segments(None)
+    A, B = np.ascontiguousarray(A), np.ascontiguousarray(B)
     k = len(A)
-    out = np.zeros((k, 5))
-    out[:, 2:] = np.nan
+    R = float(radius)
+    lower, upper, at = np.zeros(k), np.zeros(k), np.full((k, 3), np.nan)
     if k and len(F):
+        lo = V[:, :2].min(axis=0)
+        span = V[:, :2].max(axis=0) - lo
+        # 1. every move: a bound from the part's tops on a raster, dilated by the reach
+        fine = max(R / 16.0, float(span.max()) / 4000.0, 1e-6)
+        n = np.maximum(1, np.ceil(span / fine).astype(np.int64) + 1)
+        D = _dilated(_raster_tops(V, F, lo, n, fine), R / fine + 1.7)
+        _coarse(A, B, D, float(lo[0]), float(lo[1]), fine, int(n[0]), int(n[1]), upper)
+        upper = np.maximum(upper - np.minimum(A[:, 2], B[:, 2]), 0.0)
+        # 2. the moves that can hold the largest need, highest bound first, exactly
         if cell is None:
             edge = float(np.linalg.norm(V[F[:, 1], :2] - V[F[:, 0], :2], axis=1).mean())
-            cell = max(radius / 4.0, 2.0 * edge, 1e-6)
-        lo, n, ttop, cstart, ctri, ctop = _grid(V, F, cell)
-        A, B = np.ascontiguousarray(A), np.ascontiguousarray(B)
-        grid = (float(lo[0]), float(lo[1]), float(cell), int(n[0]), int(n[1]), cstart, ctri, ctop)
-        _all(np.arange(k), A, B, V, F, ttop, float(radius), np.inf, *grid, out)  # whole moves first
-        again = out[:, 1] > out[:, 0].max()
+            cell = max(R / 4.0, 2.0 * edge, 1e-6)
+        g0, gn, ttop, cstart, ctri, ctop = _grid(V, F, cell)
+        grid = (float(g0[0]), float(g0[1]), float(cell), int(gn[0]), int(gn[1]), cstart, ctri, ctop)
+
+        def exact(which, floor, dz_max, stop=np.inf):
+            if not len(which):
+                return
+            out = np.zeros((k, 5))
+            _all(which, A, B, V, F, ttop, R, dz_max, floor, stop, *grid, out)
+            o = out[which]
+            done = o[:, 0] <= stop  # not stopped early: the upper bound holds
+            stopped = which[~done]
+            which, o = which[done], o[done]
+            better = o[:, 1] < upper[which]
+            upper[which] = np.minimum(upper[which], o[:, 1])
+            at[which[better]] = o[better, 2:]
+            lower[which] = np.where(o[:, 0] > floor, np.maximum(lower[which], o[:, 0]), lower[which])
+            lower[stopped] = np.maximum(lower[stopped], out[stopped, 0])
+
+        order = np.argsort(-upper, kind="stable")
+        pos, size = 0, 64
+        while pos < k and upper[order[pos]] > lower.max():
+            floor = float(lower.max())
+            chunk = order[pos:pos + size]
+            exact(chunk[upper[chunk] > floor], floor, np.inf)
+            pos, size = pos + size, min(4 * size, 16384)
+        # 3. those whose bound still exceeds the largest need found, in pieces of small climb
+        floor = float(lower.max())
+        exact(np.flatnonzero(upper > floor), floor, float(climb))
+        # 4. the moves a given stick-out may not clear, resolved against it: whole moves
+        # first, stopping at the first part point that certainly hits, then in pieces
         if stick_out is not None:
-            again |= (out[:, 0] <= stick_out) & (out[:, 1] > stick_out)
-        _all(np.flatnonzero(again), A, B, V, F, ttop, float(radius), float(climb), *grid, out)
-    lower, upper, at = out[:, 0].copy(), out[:, 1].copy(), out[:, 2:]
+            L = float(stick_out)
+            exact(np.flatnonzero((upper > L) & (lower <= L)), L, np.inf, stop=L)
+            exact(np.flatnonzero((upper > L) & (lower <= L)), L, float(climb), stop=L)
     worst, line, tip, part = -1, None, None, None
     if k:
         worst = int(np.argmax(upper))

@@ -150,10 +150,11 @@ def _plan(dome, tmp_path, *extra):
 
 
 def test_plan_reports_the_stick_out_and_refuses_a_short_one(dome, tmp_path, capsys):
-    assert _plan(dome, tmp_path, "--holder-radius", "10") == 0
+    assert _plan(dome, tmp_path, "--holder-radius", "10", "--html", str(tmp_path / "v.html")) == 0
     out = capsys.readouterr().out
     h = json.loads((tmp_path / "r.json").read_text())["holder"]
     assert "holder            R10 needs a stick-out of" in out
+    assert f"stick-out {h['needed_stick_out']:.3f} mm needed (line {h['worst_line']})" in (tmp_path / "v.html").read_text()
     need = h["needed_stick_out"]
     assert 0 < h["needed_lower"] <= need and need - h["needed_lower"] <= 0.01 + 1e-9
     # the program read back and checked independently gives the same figure
@@ -164,7 +165,7 @@ def test_plan_reports_the_stick_out_and_refuses_a_short_one(dome, tmp_path, caps
     assert _plan(dome, tmp_path, "--holder-radius", "10", "--stick-out", long_enough) == 0
     assert f"stick-out {float(long_enough):g}: checked to clear the part" in (tmp_path / "p.nc").read_text()
     assert json.loads((tmp_path / "r.json").read_text())["holder"]["clear"] is True
-    for f in ("p.nc", "r.json"):
+    for f in ("p.nc", "r.json", "v.html"):
         (tmp_path / f).unlink()
     capsys.readouterr()
     assert _plan(dome, tmp_path, "--holder-radius", "10", "--stick-out", f"{need - 1:.3f}") == 3

@@ -253,6 +253,10 @@ def _run_job(args, job, judge_h: float) -> int:
             passes, rapids = split_program(program.points, program.motion, program.start)
             info = {"pattern": job.pattern, "tool": f"ball R{job.tool_radius:g}", "scallop H": job.scallop,
                     "tolerance E": job.tolerance}
+            if "holder" in report:
+                h = report["holder"]
+                info[f"holder R{h['radius']:g}"] = (f"stick-out {h['needed_stick_out']:.3f} mm needed "
+                                                    f"(line {h['worst_line']})")
             heat = None
             if args.verify:
                 heat, figures = vertex_heat(result.mesh, program, job.tool_radius)

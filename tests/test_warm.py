@@ -35,12 +35,13 @@ def test_nothing_needed_without_jit(monkeypatch):
     assert not warm.needed()
 
 
-def test_empty_cache_needs_both_parts(tmp_path):
-    code = "from conformill import warm; print(warm.needed(('cutter',)), warm.needed(('verify',)))"
+def test_empty_cache_needs_every_part(tmp_path):
+    code = ("from conformill import warm; "
+            "print(warm.needed(('cutter',)), warm.needed(('verify',)), warm.needed(('holder',)))")
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))
     env.pop("NUMBA_DISABLE_JIT", None)
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
-    assert out.stdout.split() == ["True", "True"]
+    assert out.stdout.split() == ["True", "True", "True"]
 
 
 def test_one_thread_starts_nothing():
@@ -71,15 +72,16 @@ event.register("numba:compile", Listen())
 from conformill.cli.main import main
 
 rc = main(["plan", sys.argv[1], "--pattern", "contour", "--tool-radius", "4", "--scallop", "0.05", "-o", sys.argv[2],
-           "-q", "--verify", "--verify-samples", "3000", "--threads", "1"])
+           "-q", "--verify", "--verify-samples", "3000", "--threads", "1", "--holder-radius", "6", "--stick-out", "40"])
 print(json.dumps({"rc": rc, "compiled": compiled}))
 """
 
 
 @pytest.mark.slow
 def test_helper_caches_what_the_plan_loads(tmp_path):
-    """On an empty cache, the helper's work leaves nothing of the cutter or the verifier
-    for ``conformill plan --verify`` to compile: same kernels, same argument types."""
+    """On an empty cache, the helper's work leaves nothing of the cutter, the verifier or the
+    holder check for ``conformill plan --verify --holder-radius`` to compile: same kernels,
+    same argument types."""
     import trimesh
 
     from conformill.mesh.synthetic import v_groove
@@ -91,14 +93,15 @@ def test_helper_caches_what_the_plan_loads(tmp_path):
     trimesh.Trimesh(m.V - np.array([0.0, 0.0, m.V[:, 2].max()]), m.F, process=False).export(part)
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
     env.pop("NUMBA_DISABLE_JIT", None)
-    subprocess.run([sys.executable, "-m", "conformill.warm", "cutter", "verify"], env=env, check=True,
+    subprocess.run([sys.executable, "-m", "conformill.warm", "cutter", "verify", "holder"], env=env, check=True,
                    capture_output=True, timeout=600)
     run = subprocess.run([sys.executable, "-c", _PLAN, str(part), str(tmp_path / "groove.nc")], env=env,
                          capture_output=True, text=True, timeout=600)
     assert run.returncode == 0, run.stderr[-2000:]
     got = json.loads(run.stdout.strip().splitlines()[-1])
     assert got["rc"] in (0, 1)  # a small part may fail the scallop check; the program is written
-    late = [k for k in got["compiled"] if k.startswith(("conformill.cutter.", "conformill.verify.simulate."))]
+    late = [k for k in got["compiled"]
+            if k.startswith(("conformill.cutter.", "conformill.verify.simulate.", "conformill.verify.holder."))]
     assert late == [], f"compiled again in the plan: {late}"
     assert any(k.startswith("conformill.") for k in got["compiled"])  # the listener works: earlier stages compiled
 
@@ -116,7 +119,8 @@ def _part_files(tmp_path):
 
 
 @pytest.mark.parametrize("extra,parts", [([], ("cutter",)), (["--verify", "--verify-samples", "500"],
-                                                           ("cutter", "verify"))])
+                                                           ("cutter", "verify")),
+                                         (["--holder-radius", "6"], ("cutter", "holder"))])
 def test_plan_asks_for_the_parts_it_uses(monkeypatch, tmp_path, extra, parts):
     from conformill.cli.main import main
 
@@ -129,7 +133,9 @@ def test_plan_asks_for_the_parts_it_uses(monkeypatch, tmp_path, extra, parts):
 
 
 @pytest.mark.parametrize("extra,parts", [([], []), (["--judge", "reachable"], [("cutter",)]),
-                                         (["--rest", "--scallop", "0.1"], [("cutter",)])])
+                                         (["--rest", "--scallop", "0.1"], [("cutter",)]),
+                                         (["--holder-radius", "6"], [("holder",)]),
+                                         (["--holder-radius", "6", "--judge", "reachable"], [("cutter", "holder")])])
 def test_verify_asks_for_the_cutter_when_it_drops_the_ball(monkeypatch, tmp_path, extra, parts):
     from conformill.cli.main import main
 

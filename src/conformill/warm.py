@@ -26,7 +26,7 @@ import numpy as np
 __all__ = ["beside", "needed", "start", "stop", "warm"]
 
 #: What the helper process compiles, in this order.
-PARTS = ("cutter", "verify")
+PARTS = ("cutter", "verify", "holder")
 
 #: The helper's part: a V-groove with walls at this slope (deg).
 _WALL_DEG = 20.0
@@ -71,7 +71,8 @@ def _cached(module: str, name: str) -> bool:
 
 #: The kernels asked by :func:`needed` (the largest of each part), as (module, name).
 PROBES = {"cutter": (("conformill.cutter", "_worst_points"), ("conformill.cutter", "_highest_floats")),
-          "verify": (("conformill.verify.simulate", "_pairs_d2"), ("conformill.verify.simulate", "_cast"))}
+          "verify": (("conformill.verify.simulate", "_pairs_d2"), ("conformill.verify.simulate", "_cast")),
+          "holder": (("conformill.verify.holder", "_all"), ("conformill.verify.holder", "_coarse"))}
 
 
 def needed(parts=PARTS) -> bool:
@@ -158,13 +159,12 @@ def _cutter(mesh, r: float) -> np.ndarray:
     return pcs[0]
 
 
-def _verify(mesh, centres, r: float) -> None:
-    """``conformill plan --verify``'s check of a short program along ``centres``."""
+def _program(mesh, centres, r: float):
+    """A short program along ``centres`` as ``conformill plan`` writes and reads it back."""
     import tempfile
     from pathlib import Path
 
     from conformill.verify.gcode import read_gcode
-    from conformill.verify.simulate import verify
 
     # written here, not by conformill.output.gcode: its kernels would delay the verifier's
     tip = centres - np.array([0.0, 0.0, r])
@@ -176,17 +176,39 @@ def _verify(mesh, centres, r: float) -> None:
     with tempfile.TemporaryDirectory() as d:
         f = Path(d) / "warm.nc"
         f.write_text("\n".join(lines) + "\n")
-        program = read_gcode(f)
+        return read_gcode(f)
+
+
+def _verify(mesh, program, r: float) -> None:
+    """``conformill plan --verify``'s check of a short program."""
+    from conformill.verify.simulate import verify
+
     verify(mesh, program, r, n_samples=2000, scallop=0.0105, gouge=0.01, judge="reachable")
+
+
+def _holder(mesh, program, r: float) -> None:
+    """``--holder-radius``'s check of a short program, with a stick-out it cannot clear
+    (every pass of the check runs)."""
+    from conformill.verify.holder import holder_clearance
+
+    holder_clearance(mesh.V, mesh.F, program, r + 2.0, stick_out=0.5)
 
 
 def warm(parts=PARTS) -> None:
     """Compile (or load) the kernels of ``parts`` by calling them on a tiny part."""
     r = 4.0
     mesh = _tiny_part()
-    centres = _cutter(mesh, r)
-    if "verify" in parts:
-        _verify(mesh, centres, r)
+    if "cutter" in parts:
+        centres = _cutter(mesh, r)
+    else:  # a line above the crease: the checks compile the same on any program
+        x = np.linspace(-5.0, 5.0, 21)
+        centres = np.column_stack([x, np.zeros_like(x), np.abs(x) * np.tan(np.radians(_WALL_DEG)) + r])
+    if "verify" in parts or "holder" in parts:
+        program = _program(mesh, centres, r)
+        if "verify" in parts:
+            _verify(mesh, program, r)
+        if "holder" in parts:
+            _holder(mesh, program, r)
 
 
 if __name__ == "__main__":  # pragma: no cover - run as the helper process

@@ -195,8 +195,11 @@ def run(args) -> int:
         raise ConformillError(f"G-code file {args.program} does not exist (or is a folder)")
     from conformill import warm
 
-    # their search drops the ball: on a first run a second process compiles the cutter's kernels
-    with warm.beside(("cutter",) if args.judge == "reachable" or args.rest else ()):
+    # on a first run a second process compiles the kernels of the cutter (the reachable judge's
+    # and the rest's search drop the ball) and of the holder check
+    parts = (("cutter",) if args.judge == "reachable" or args.rest else ()) + (
+        ("holder",) if args.holder_radius is not None else ())
+    with warm.beside(parts):
         return _check(args)
 
 

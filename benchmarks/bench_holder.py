@@ -9,11 +9,12 @@ plans each part's default program at r = 4, h = e = 0.01 (in-process, written as
 read back, as ``conformill verify`` reads it), then for each holder radius prints: the
 check's time with no stick-out, with a stick-out 1 mm longer than needed (clear) and with one
 5 mm shorter (refused), the reference's time and the ratio, the needed stick-out by both
-(they must agree within the 0.01 mm climb), the moves the short stick-out may hit, and the
+(they must agree within the 0.01 mm climb: the reference shares the check's geometry
+kernels, so this checks the passes' pruning; ``tests/test_holder.py`` checks the geometry
+against analytic needs and sampled points), the moves the short stick-out may hit, and the
 gap between the check's two bounds.
 
-    python benchmarks/bench_holder.py [MESH ...] [--pattern zigzag] [--radii 8 16 25]
-        [--program NAME=FILE.nc --scale S]  (a program planned elsewhere on MESH's file)
+    python benchmarks/bench_holder.py [MESH ...] [--pattern zigzag] [--radii 8 16 25] [--large]
 
 ``MESH`` is a short name of :data:`_common.MESH_FILES` (default ``igea sample:face``). With
 ``--large``, the 620k-face mesh's contour program (scale 1400, planned here, about 15 s) is

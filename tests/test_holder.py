@@ -67,9 +67,31 @@ def test_dome_beside_the_tool_sets_the_need():
         # found on the holder's rim, on the side of the dome
         assert h.worst_line == 3 and np.hypot(h.worst_part[0] - d, h.worst_part[1]) == pytest.approx(R, abs=1e-9)
         assert np.hypot(*h.worst_part[:2]) == pytest.approx(d - R, abs=1e-3)
+        assert h.worst_tip == (d, 0.0, 0.0)  # the plunge's lowest tip
     # far enough away, nothing of the part is above the tip: no stick-out needed
     far = holder_clearance(m.V, m.F, _program([[35.0, 0.0, 0.0]], start=[35.0, 0.0, 50.0]), 5.0)
     assert far.needed == 0.0 and far.worst_part is None
+
+
+def test_level_triangle_over_the_whole_reach():
+    # a level square at z = 10 (two triangles) wider than the reach, the tip under it: no edge
+    # is in reach, the top is reached at the move's ends (review of session 33)
+    V = np.array([[-50, -50, 10], [50, -50, 10], [50, 50, 10], [-50, 50, 10]], dtype=np.float64)
+    F = np.array([[0, 1, 2], [0, 2, 3]], dtype=np.int64)
+    h = holder_clearance(V, F, _program([[3.0, 1.0, 0.0]], start=[0.0, 0.0, 0.0]), 5.0)
+    assert h.needed == pytest.approx(10.0, abs=1e-12) and h.needed_lower == pytest.approx(10.0, abs=1e-12)
+
+
+def test_the_worst_move_is_named_not_one_left_at_the_floor():
+    # plane z = x; line 3 climbs 10 below it (needs R + 10 = 15), line 6 plunges to 15 below it
+    # (needs R + 15 = 20): the report names line 6, its lowest tip and a point within R of it
+    V, F = _tilted_square(1.0)
+    prog = read_gcode("G21 G90\nG0 X0 Y0 Z-10\nG1 X10 Y0 Z0 F500\nG0 Z100\nG0 X0 Y50\nG0 Z-15\n")
+    h = holder_clearance(V, F, prog, 5.0)
+    assert h.needed == pytest.approx(20.0, abs=1e-9) and h.worst_line == 6
+    assert h.worst_tip == pytest.approx((0.0, 50.0, -15.0)) and h.worst_part[2] - h.worst_tip[2] == pytest.approx(20.0)
+    assert np.hypot(h.worst_part[0] - h.worst_tip[0], h.worst_part[1] - h.worst_tip[1]) <= 5.0 + 1e-9
+    assert 15.0 - 1e-9 <= h.upper[1] < h.needed  # line 3: bounded below the worst, not tied with it
 
 
 def _bumpy():

@@ -285,9 +285,11 @@ def _holder(mesh, program, radius: float, stick_out: float | None) -> dict:
 
     h = holder_clearance(mesh.V, mesh.F, program, radius, stick_out=stick_out).summary(stick_out)
     if stick_out is not None and not h["clear"]:
-        raise PlanningError(f"holder R{radius:g} at stick-out {stick_out:g} mm: {holder_failure(h)} "
-                            f"(the part at ({', '.join(f'{x:.3f}' for x in h['worst_part'])}) within R of the move on "
-                            f"line {h['worst_line']}); nothing written")
+        where = "" if h["worst_part"] is None else (
+            f" (the part at ({', '.join(f'{x:.3f}' for x in h['worst_part'])}) within R of the move on line "
+            f"{h['worst_line']})")
+        raise PlanningError(f"holder R{radius:g} at stick-out {stick_out:g} mm: {holder_failure(h)}{where}; "
+                            f"nothing written")
     return h
 
 

@@ -15,7 +15,8 @@ Bounds, not a sampling
 ----------------------
 Over a triangle mesh this module brackets ``need`` per move, in three passes:
 
-1. *every move*: the highest triangle top over the cells of an XY raster (cell ``R / 16``)
+1. *every move*: the highest triangle top over the cells of an XY raster (cell ``R / 16``,
+   or 1/1000 of the part's XY extent if larger)
    within reach of the move's points, by a disk maximum filter of the raster: an upper bound
    (it reaches about 1.7 cells further and takes whole triangles' tops);
 2. *the moves whose bound can hold the program's largest need*, highest bound first, over
@@ -36,7 +37,9 @@ R = 8-25 mm, with or without a stick-out it clears; 7.7 s and 15 s for stick-out
 and 90 % of the moves cannot clear (README, "Holder clearance").
 
 The holder's taper, the spindle nose and the machine's travel are not modelled: give the
-radius of the widest part within the length that can come down to the part.
+radius of the widest part within the length that can come down to the part. Arcs are
+checked on the chords the reader replaces them by (within its ``chord_tol``, 0.001 mm by
+default), so on an arc the reach is short by up to that much.
 
 Nothing here imports the planner: the check reads the program as written
 (:class:`conformill.verify.gcode.Program`).
@@ -195,13 +198,16 @@ def _tri_need(t, V, F, R, ax, ay, az, bx, by, bz):
     ny = (z1 - z0) * (x2 - x0) - (x1 - x0) * (z2 - z0)
     nz = (x1 - x0) * (y2 - y0) - (y1 - y0) * (x2 - x0)
     g = math.sqrt(nx * nx + ny * ny)
-    if nz != 0.0 and g > 0.0:  # not vertical (its edges hold its top then), not level
-        sgn = -1.0 if nz > 0.0 else 1.0
-        gx, gy = sgn * nx / g, sgn * ny / g
+    if nz != 0.0:  # not vertical (its edges hold its top then)
+        gx, gy = 0.0, 0.0  # a level triangle: its top is anywhere, the move's ends will do
+        if g > 0.0:
+            sgn = -1.0 if nz > 0.0 else 1.0
+            gx, gy = sgn * nx / g, sgn * ny / g
         zlo, ztop = min(z0, min(z1, z2)), max(z0, max(z1, z2))
-        for k in range(2):
-            cx = (ax if k == 0 else bx) + R * gx
-            cy = (ay if k == 0 else by) + R * gy
+        for k in range(4):  # the support points, then the move's ends (a level triangle over
+            # the whole reach has no edge in it)
+            cx = (ax if k % 2 == 0 else bx) + (R * gx if k < 2 else 0.0)
+            cy = (ay if k % 2 == 0 else by) + (R * gy if k < 2 else 0.0)
             if _inside(cx, cy, x0, y0, x1, y1, x2, y2):
                 cz = min(ztop, max(zlo, z0 - (nx * (cx - x0) + ny * (cy - y0)) / nz))
                 if cz - tipmin > hi:
@@ -291,40 +297,47 @@ def _coarse(A, B, D, lox, loy, cell, nx, ny, out):
         out[i] = best
 
 
+@nb.njit(cache=True)
+def _raster_fill(V, F, lox, loy, cell, nx, ny, top):
+    for t in range(F.shape[0]):
+        x0, x1, y0, y1, zt = np.inf, -np.inf, np.inf, -np.inf, -np.inf
+        for q in range(3):
+            v = F[t, q]
+            x0, x1 = min(x0, V[v, 0]), max(x1, V[v, 0])
+            y0, y1 = min(y0, V[v, 1]), max(y1, V[v, 1])
+            zt = max(zt, V[v, 2])
+        i0 = min(nx - 1, max(0, int(math.floor((x0 - lox) / cell))))
+        i1 = min(nx - 1, max(0, int(math.floor((x1 - lox) / cell))))
+        j0 = min(ny - 1, max(0, int(math.floor((y0 - loy) / cell))))
+        j1 = min(ny - 1, max(0, int(math.floor((y1 - loy) / cell))))
+        for i in range(i0, i1 + 1):
+            for j in range(j0, j1 + 1):
+                top[i, j] = max(top[i, j], zt)
+
+
 def _raster_tops(V, F, lo, n, cell):
     """Highest triangle top over each cell (every cell a triangle's XY box overlaps)."""
-    T = V[F]
-    ttop = T[:, :, 2].max(axis=1)
-    c0 = np.floor((T[:, :, :2].min(axis=1) - lo) / cell).astype(np.int64)
-    c1 = np.floor((T[:, :, :2].max(axis=1) - lo) / cell).astype(np.int64)
-    wx, wy = c1[:, 0] - c0[:, 0] + 1, c1[:, 1] - c0[:, 1] + 1
-    cnt = wx * wy
-    tri = np.repeat(np.arange(len(F)), cnt)
-    k = np.arange(cnt.sum()) - np.repeat(np.cumsum(cnt) - cnt, cnt)
-    top = np.full(n[0] * n[1], -np.inf)
-    np.maximum.at(top, (c0[tri, 0] + k // wy[tri]) * n[1] + c0[tri, 1] + k % wy[tri], ttop[tri])
-    return top.reshape(n[0], n[1])
+    top = np.full((int(n[0]), int(n[1])), -np.inf)
+    _raster_fill(V, F, float(lo[0]), float(lo[1]), float(cell), int(n[0]), int(n[1]), top)
+    return top
 
 
 def _dilated(top, reach_cells: float):
     """``D[c] = max top[c']`` over the cells ``c'`` whose centre lies within ``reach_cells``
-    cells of ``c``'s: a disk's maximum filter as one 1D filter along X per row offset."""
+    cells of ``c``'s: a disk's maximum filter as one 1D filter along X per row offset (one
+    filtered copy at a time: the row offsets ``+-dy`` share it)."""
     from scipy.ndimage import maximum_filter1d
 
     D = top.copy()
     K = int(math.floor(reach_cells))
-    rows = {}
-    for dy in range(-K, K + 1):
+    for dy in range(K + 1):
         w = int(math.floor(math.sqrt(max(reach_cells * reach_cells - dy * dy, 0.0))))
-        if w not in rows:
-            rows[w] = maximum_filter1d(top, size=2 * w + 1, axis=0, mode="constant", cval=-np.inf)
-        M = rows[w]
-        if dy > 0:
-            np.maximum(D[:, :-dy], M[:, dy:], out=D[:, :-dy])
-        elif dy < 0:
-            np.maximum(D[:, -dy:], M[:, :dy], out=D[:, -dy:])
-        else:
+        M = maximum_filter1d(top, size=2 * w + 1, axis=0, mode="constant", cval=-np.inf)
+        if dy == 0:
             np.maximum(D, M, out=D)
+        elif dy < top.shape[1]:
+            np.maximum(D[:, :-dy], M[:, dy:], out=D[:, :-dy])
+            np.maximum(D[:, dy:], M[:, :-dy], out=D[:, dy:])
     return D
 
 
@@ -376,9 +389,12 @@ class HolderCheck:
     worst_line : int or None
         Its line in the program's source.
     worst_tip : tuple of float or None
-        The tip at the lower end of that move (x, y, z).
+        The lowest tip of that move from which ``worst_part`` is within R (x, y, z); the
+        move's lower end when there is no such point.
     worst_part : tuple of float or None
-        The highest vertex in reach of that move (x, y, z), or of its highest triangle.
+        The point of the part where that move's upper bound is reached (x, y, z): an end of
+        a triangle edge's span in reach, a support point of the reach or a move's end under
+        a triangle; None when the part is nowhere above the tip within R.
     """
 
     radius: float
@@ -417,6 +433,25 @@ class HolderCheck:
         return out
 
 
+def _lowest_tip(a, b, p, R: float) -> np.ndarray:
+    """The lowest tip of the move ab from which the part point p is within R in XY (an end of
+    that interval of the move, t_z being linear; its nearest in XY should rounding leave the
+    interval empty)."""
+    d, w = (b - a)[:2], (p - a)[:2]
+    dd = float(d @ d)
+    if dd <= 1e-24:
+        s0, s1 = 0.0, 1.0
+    else:
+        wd = float(w @ d)
+        disc = wd * wd - dd * (float(w @ w) - R * R)
+        sq = math.sqrt(max(disc, 0.0))
+        s0, s1 = max(0.0, (wd - sq) / dd), min(1.0, (wd + sq) / dd)
+        if s0 > s1:
+            s0 = s1 = min(1.0, max(0.0, wd / dd))
+    t0, t1 = a + s0 * (b - a), a + s1 * (b - a)
+    return t0 if t0[2] <= t1[2] else t1
+
+
 def check_holder(radius, stick_out=None, tool_radius=None) -> None:
     """Refuse a holder radius or stick-out that is not a positive finite number, or a holder
     not wider than the tool (bad input: exit code 2)."""
@@ -427,8 +462,8 @@ def check_holder(radius, stick_out=None, tool_radius=None) -> None:
             raise ConformillError(f"the {name} must be a positive number of mm, got {v!r}")
     if radius is not None and tool_radius is not None and radius <= tool_radius:
         raise ConformillError(f"the holder radius ({radius:g} mm) must be larger than the tool radius "
-                              f"({tool_radius:g} mm): up to the holder the tool is the ball's shank, which the "
-                              f"drop-cutter already keeps clear")
+                              f"({tool_radius:g} mm): up to the holder the tool is the ball and its shank of the "
+                              f"ball's radius, which this check does not model")
 
 
 def holder_clearance(V, F, program: Program, radius: float, stick_out: float | None = None, climb: float = 0.01,
@@ -454,7 +489,8 @@ def holder_clearance(V, F, program: Program, radius: float, stick_out: float | N
         largest lower bound, or their bounds straddling ``stick_out``): then ``needed``
         exceeds the need by at most this, plus the rounding of the arithmetic.
     cell : float, optional
-        XY grid cell of the triangle index (default ``max(R / 4, 2 x the mean edge)``).
+        XY grid cell of the exact pass's triangle index (default ``max(R / 4, 2 x the mean
+        edge, 1/500 of the part's XY extent)``).
 
     Returns
     -------
@@ -463,7 +499,7 @@ def holder_clearance(V, F, program: Program, radius: float, stick_out: float | N
     Raises
     ------
     ConformillError
-        When ``radius`` is not a positive number.
+        When ``radius`` or ``stick_out`` is not a positive number.
     """
     check_holder(radius, stick_out)
     V = np.ascontiguousarray(V, dtype=np.float64)
@@ -477,7 +513,7 @@ def holder_clearance(V, F, program: Program, radius: float, stick_out: float | N
         lo = V[:, :2].min(axis=0)
         span = V[:, :2].max(axis=0) - lo
         # 1. every move: a bound from the part's tops on a raster, dilated by the reach
-        fine = max(R / 16.0, float(span.max()) / 4000.0, 1e-6)
+        fine = max(R / 16.0, float(span.max()) / 1000.0, 1e-6)
         n = np.maximum(1, np.ceil(span / fine).astype(np.int64) + 1)
         D = _dilated(_raster_tops(V, F, lo, n, fine), R / fine + 1.7)
         _coarse(A, B, D, float(lo[0]), float(lo[1]), fine, int(n[0]), int(n[1]), upper)
@@ -485,7 +521,7 @@ def holder_clearance(V, F, program: Program, radius: float, stick_out: float | N
         # 2. the moves that can hold the largest need, highest bound first, exactly
         if cell is None:
             edge = float(np.linalg.norm(V[F[:, 1], :2] - V[F[:, 0], :2], axis=1).mean())
-            cell = max(R / 4.0, 2.0 * edge, 1e-6)
+            cell = max(R / 4.0, 2.0 * edge, float(span.max()) / 500.0, 1e-6)
         g0, gn, ttop, cstart, ctri, ctop = _grid(V, F, cell)
         grid = (float(g0[0]), float(g0[1]), float(cell), int(gn[0]), int(gn[1]), cstart, ctri, ctop)
 
@@ -498,7 +534,8 @@ def holder_clearance(V, F, program: Program, radius: float, stick_out: float | N
             done = o[:, 0] <= stop  # not stopped early: the upper bound holds
             stopped = which[~done]
             which, o = which[done], o[done]
-            better = o[:, 1] < upper[which]
+            # a bound reached at a point of the part (not left at the floor) names where
+            better = (o[:, 1] <= upper[which]) & np.isfinite(o[:, 2])
             upper[which] = np.minimum(upper[which], o[:, 1])
             at[which[better]] = o[better, 2:]
             lower[which] = np.where(o[:, 0] > floor, np.maximum(lower[which], o[:, 0]), lower[which])
@@ -512,7 +549,9 @@ def holder_clearance(V, F, program: Program, radius: float, stick_out: float | N
             exact(chunk[upper[chunk] > floor], floor, np.inf)
             pos, size = pos + size, min(4 * size, 16384)
         # 3. those whose bound still exceeds the largest need found, in pieces of small climb
+        # (from just below it: a move that needs exactly that much is found, with its point)
         floor = float(lower.max())
+        floor = max(floor - 1e-9 * max(1.0, floor), 0.0)  # no need is below 0
         exact(np.flatnonzero(upper > floor), floor, float(climb))
         # 4. the moves a given stick-out may not clear, resolved against it: whole moves
         # first, stopping at the first part point that certainly hits, then in pieces
@@ -522,11 +561,14 @@ def holder_clearance(V, F, program: Program, radius: float, stick_out: float | N
             exact(np.flatnonzero((upper > L) & (lower <= L)), L, float(climb), stop=L)
     worst, line, tip, part = -1, None, None, None
     if k:
-        worst = int(np.argmax(upper))
+        worst = int(np.lexsort((-lower, -upper))[0])  # the largest bound; of equal ones, the surest
         line = int(program.line[worst])
-        tip = tuple(float(x) for x in (A[worst] if A[worst, 2] <= B[worst, 2] else B[worst]))
+        a, b = A[worst], B[worst]
+        t = a if a[2] <= b[2] else b
         if np.isfinite(at[worst, 0]):
             part = tuple(float(x) for x in at[worst])
+            t = _lowest_tip(a, b, at[worst], R)
+        tip = tuple(float(x) for x in t)
     return HolderCheck(radius=float(radius), lower=lower, upper=upper, line=np.asarray(program.line),
                        needed=float(upper.max()) if k else 0.0, needed_lower=float(lower.max()) if k else 0.0,
                        worst_move=worst, worst_line=line, worst_tip=tip, worst_part=part)

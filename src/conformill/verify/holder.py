@@ -509,6 +509,7 @@ def holder_clearance(V, F, program: Program, radius: float, stick_out: float | N
     k = len(A)
     R = float(radius)
     lower, upper, at = np.zeros(k), np.zeros(k), np.full((k, 3), np.nan)
+    capped = np.zeros(k, dtype=bool)  # upper is only the floor the move was checked above
     if k and len(F):
         lo = V[:, :2].min(axis=0)
         span = V[:, :2].max(axis=0) - lo
@@ -537,6 +538,7 @@ def holder_clearance(V, F, program: Program, radius: float, stick_out: float | N
             # a bound reached at a point of the part (not left at the floor) names where
             better = (o[:, 1] <= upper[which]) & np.isfinite(o[:, 2])
             upper[which] = np.minimum(upper[which], o[:, 1])
+            capped[which] = np.isnan(o[:, 2])
             at[which[better]] = o[better, 2:]
             lower[which] = np.where(o[:, 0] > floor, np.maximum(lower[which], o[:, 0]), lower[which])
             lower[stopped] = np.maximum(lower[stopped], out[stopped, 0])
@@ -552,7 +554,7 @@ def holder_clearance(V, F, program: Program, radius: float, stick_out: float | N
         # (from just below it: a move that needs exactly that much is found, with its point)
         floor = float(lower.max())
         floor = max(floor - 1e-9 * max(1.0, floor), 0.0)  # no need is below 0
-        exact(np.flatnonzero(upper > floor), floor, float(climb))
+        exact(np.flatnonzero((upper > floor) & ~capped), floor, float(climb))
         # 4. the moves a given stick-out may not clear, resolved against it: whole moves
         # first, stopping at the first part point that certainly hits, then in pieces
         if stick_out is not None:

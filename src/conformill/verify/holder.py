@@ -33,7 +33,7 @@ Over a triangle mesh this module brackets ``need`` per move, in three passes:
 
 A program is judged clear when ``L`` is at least the largest upper bound; the report gives
 both bounds, and where (the move's source line, its lowest tip, and the point of the part).
-On the 620k-face igea program (886310 moves) the check takes 0.6-0.9 s on two cores for
+On the 620k-face igea program (886310 moves) the check takes 0.7-0.9 s on two cores for
 R = 8-25 mm, with or without a stick-out it clears; 8.5 s and 5.3 s for stick-outs that 22 %
 and 90 % of the moves cannot clear (README, "Holder clearance").
 

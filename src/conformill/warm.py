@@ -160,7 +160,8 @@ def _cutter(mesh, r: float) -> np.ndarray:
 
 
 def _program(mesh, centres, r: float):
-    """A short program along ``centres`` as ``conformill plan`` writes and reads it back."""
+    """A short program along ``centres`` (tips ``r`` below), written and read back as
+    ``conformill plan`` reads its own."""
     import tempfile
     from pathlib import Path
 

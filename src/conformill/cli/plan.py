@@ -171,7 +171,8 @@ def run(args) -> int:
     from conformill import warm
 
     # on a first run a second process compiles the later stages' kernels (not with --threads 1)
-    parts = ("cutter",) + (("verify",) if args.verify else ()) + (("holder",) if args.holder_radius is not None else ())
+    parts = ("cutter",) + (("verify",) if args.verify else ()) + (
+        ("holder",) if args.holder_radius is not None else ())
     with warm.beside(parts):
         return _run_job(args, job, judge_h)
 

@@ -77,19 +77,6 @@ def _orient(ax, ay, bx, by, cx, cy):
 
 
 @nb.njit(cache=True, inline="always")
-def _seg_seg_d2(ax, ay, bx, by, cx, cy, dx, dy):
-    """Squared distance between the 2D segments ab and cd (0 when they cross)."""
-    o1 = _orient(ax, ay, bx, by, cx, cy)
-    o2 = _orient(ax, ay, bx, by, dx, dy)
-    o3 = _orient(cx, cy, dx, dy, ax, ay)
-    o4 = _orient(cx, cy, dx, dy, bx, by)
-    if ((o1 > 0.0 and o2 < 0.0) or (o1 < 0.0 and o2 > 0.0)) and ((o3 > 0.0 and o4 < 0.0) or (o3 < 0.0 and o4 > 0.0)):
-        return 0.0
-    return min(min(_pt_seg_d2(ax, ay, cx, cy, dx, dy), _pt_seg_d2(bx, by, cx, cy, dx, dy)),
-               min(_pt_seg_d2(cx, cy, ax, ay, bx, by), _pt_seg_d2(dx, dy, ax, ay, bx, by)))
-
-
-@nb.njit(cache=True, inline="always")
 def _inside(px, py, x0, y0, x1, y1, x2, y2):
     d0 = _orient(x0, y0, x1, y1, px, py)
     d1 = _orient(x1, y1, x2, y2, px, py)
@@ -172,8 +159,9 @@ def _tri_need(t, V, F, R, ax, ay, az, bx, by, bz):
     """Over the points of triangle t within XY distance R of the move ab: the largest ``p_z``
     less the move's lowest tip (upper bound of its need), and the largest exact need
     (:func:`_need`) at the points where ``p_z`` can be largest: the ends of the edges' spans
-    in reach, and the capsule's support points in the direction z climbs, where inside t
-    (the maximum of a linear function over the convex set t ∩ capsule is at one of them)."""
+    in reach, the capsule's support points in the direction z climbs and the move's ends,
+    where inside t (the maximum of a linear function over the convex set t ∩ capsule is at
+    one of them; the ends serve a level t that holds the whole reach, with no edge in it)."""
     dx, dy, dz = bx - ax, by - ay, bz - az
     dd = dx * dx + dy * dy
     R2 = R * R
@@ -425,6 +413,10 @@ class HolderCheck:
 
     def hits(self, stick_out: float) -> dict:
         """What a stick-out of ``stick_out`` mm gives: clearance and the moves that may hit.
+
+        ``clear`` holds for any ``stick_out``; the counts and the first line are resolved for
+        the stick-out the check was run with (:func:`holder_clearance`), and for others are
+        bounds (a move that may hit counted for a raster bound only).
 
         Returns
         -------

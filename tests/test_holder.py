@@ -53,6 +53,33 @@ def test_tilted_plane_needs_the_rim_height_in_the_climb_direction(k):
         assert h.needed_lower == pytest.approx(want, abs=1e-3)
 
 
+@pytest.mark.parametrize("k, ring", [(1.0, 1), (0.5, 0)])
+def test_stepped_holder_needs_its_worst_ring(k, ring):
+    # z = k x; a nut of radius 5 at the face and a body of radius 10 from 4 mm above it: at a
+    # tip (x, 0, 0) the nut needs k (x + 5), the body k (x + 10) - 4, and the holder the larger
+    V, F = _tilted_square(k)
+    prog = _program([[0.0, 1.0, 0.0]], start=[0.0, 0.0, 0.0])
+    h = holder_clearance(V, F, prog, 5.0, steps=[(10.0, 4.0)], climb=1e-6)
+    want = (5.0 * k, 10.0 * k - 4.0)
+    assert h.needed == pytest.approx(max(want), abs=1e-6) and h.needed_lower == pytest.approx(max(want), abs=1e-6)
+    assert h.worst_part[0] == pytest.approx((5.0, 10.0)[ring], abs=1e-6)  # the rim of the ring that sets it
+    assert h.summary()["steps"] == [[10.0, 4.0]]
+    # a stick-out between the two rings' needs is refused for the ring that needs more
+    mid = (5.0 * k + 10.0 * k - 4.0) / 2
+    assert not h.hits(mid)["clear"]
+    hs = holder_clearance(V, F, prog, 5.0, steps=[(10.0, 4.0)], stick_out=mid)
+    assert hs.hits(mid)["moves_may_hit"] == hs.hits(mid)["moves_hit"] == 2
+
+
+def test_bad_holder_steps():
+    V, F = _tilted_square(1.0)
+    prog = _program([[0.0, 1.0, 0.0]], start=[0.0, 0.0, 0.0])
+    for bad, word in [([(10.0,)], "a radius and a height"), ([(10.0, 0.0)], "height must be a positive"),
+                      ([(-1.0, 3.0)], "radius must be a positive"), ([(10.0, 3.0), (12.0, 3.0)], "two holder steps")]:
+        with pytest.raises(ConformillError, match=word):
+            holder_clearance(V, F, prog, 5.0, steps=bad)
+
+
 def test_dome_beside_the_tool_sets_the_need():
     # a dome of radius 30 over a disk of radius 20 (vertices on the sphere): a plunge to z = 0
     # at distance d from its axis meets it at horizontal distance d - R, where the sphere is
@@ -176,7 +203,8 @@ def test_plan_reports_the_stick_out_and_refuses_a_short_one(dome, tmp_path, caps
     out = capsys.readouterr().out
     h = json.loads((tmp_path / "r.json").read_text())["holder"]
     assert "holder            R10 needs a stick-out of" in out
-    assert f"stick-out {h['needed_stick_out']:.3f} mm needed (line {h['worst_line']})" in (tmp_path / "v.html").read_text()
+    panel = f"stick-out {h['needed_stick_out']:.3f} mm needed (line {h['worst_line']})"
+    assert panel in (tmp_path / "v.html").read_text()
     need = h["needed_stick_out"]
     assert 0 < h["needed_lower"] <= need and need - h["needed_lower"] <= 0.01 + 1e-9
     # the program read back and checked independently gives the same figure
@@ -187,6 +215,10 @@ def test_plan_reports_the_stick_out_and_refuses_a_short_one(dome, tmp_path, caps
     assert _plan(dome, tmp_path, "--holder-radius", "10", "--stick-out", long_enough) == 0
     assert f"stick-out {float(long_enough):g}: checked to clear the part" in (tmp_path / "p.nc").read_text()
     assert json.loads((tmp_path / "r.json").read_text())["holder"]["clear"] is True
+    assert _plan(dome, tmp_path, "--holder-radius", "10", "--holder-step", "30@2") == 0  # a stepped holder
+    assert "(param holder: radius 10, radius 30 from 2 above its face)" in (tmp_path / "p.nc").read_text()
+    stepped = json.loads((tmp_path / "r.json").read_text())["holder"]
+    assert stepped["steps"] == [[30, 2]] and stepped["needed_stick_out"] >= need - 1e-3
     for f in ("p.nc", "r.json", "v.html"):
         (tmp_path / f).unlink()
     capsys.readouterr()
@@ -205,7 +237,10 @@ def _mesh(path):
 
 
 @pytest.mark.parametrize("extra, word", [
-    (["--stick-out", "30"], "--stick-out needs --holder-radius"),
+    (["--stick-out", "30"], "need --holder-radius"),
+    (["--holder-step", "20@10"], "need --holder-radius"),
+    (["--holder-radius", "10", "--holder-step", "20"], "expected R@H"),
+    (["--holder-radius", "10", "--holder-step", "20@0"], "height must be a positive"),
     (["--holder-radius", "2"], "must be larger than the tool radius"),
     (["--holder-radius", "10", "--stick-out", "-1"], "stick-out must be a positive number"),
     (["--holder-radius", "nan"], "holder radius must be a positive number"),
@@ -233,3 +268,9 @@ def test_verify_holder_pass_and_fail(dome, tmp_path, capsys):
     v = json.loads((tmp_path / "v.json").read_text())
     assert v["pass"] is False and v["holder"]["moves_may_hit"] >= v["holder"]["moves_hit"] >= 1
     assert main(args[:-2] + ["--stick-out", "20"]) == 2  # a stick-out without the holder
+    # a stepped holder: its body, wider than the nut, can only need more
+    capsys.readouterr()
+    assert main(args + ["--holder-step", "30@2", "--report", str(tmp_path / "v.json")]) == 0
+    v = json.loads((tmp_path / "v.json").read_text())["holder"]
+    assert v["steps"] == [[30, 2]] and v["needed_stick_out"] >= need - 1e-3
+    assert "holder R10, R30 from 2 mm: needs a stick-out of" in capsys.readouterr().out

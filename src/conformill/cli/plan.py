@@ -88,6 +88,9 @@ def add_arguments(p) -> None:
                    help="radius of the tool holder (its widest part that can come down to the part), mm: check the "
                         "written program and report the stick-out (tip to holder face) it needs for the holder to "
                         "clear the part on every move")
+    p.add_argument("--holder-step", type=_holder_step, action="append", default=[], metavar="R@H",
+                   help="with --holder-radius: a wider part of the holder, radius R from H mm above its face (repeat "
+                        "for each step; e.g. a collet nut, then the body)")
     p.add_argument("--stick-out", type=float, default=None, metavar="L",
                    help="with --holder-radius: the tool's stick-out, mm; a program on which the holder may meet the "
                         "part is refused (exit 3, nothing written), naming the first line and the stick-out that "
@@ -120,6 +123,12 @@ def _blend(text: str):
         return float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected a number (mm) or off, got {text!r}") from None
+
+
+def _holder_step(text: str):
+    from conformill.cli.verify import holder_step
+
+    return holder_step(text)
 
 
 def _corners(text):
@@ -156,11 +165,12 @@ def run(args) -> int:
     from conformill.pipeline import check_job
 
     check_job(job)
-    if args.stick_out is not None and args.holder_radius is None:
-        raise ConformillError("--stick-out needs --holder-radius (the holder whose clearance it sets)")
-    from conformill.verify.holder import check_holder
+    if (args.stick_out is not None or args.holder_step) and args.holder_radius is None:
+        raise ConformillError("--stick-out and --holder-step need --holder-radius (the holder's face)")
+    from conformill.verify.holder import check_holder, check_steps
 
     check_holder(args.holder_radius, args.stick_out, job.tool_radius)
+    check_steps(args.holder_step)
     if args.verify_scallop is not None:  # asking for a judged height is asking for the check
         args.verify = True
     if args.verify and args.verify_samples < 1:
@@ -218,7 +228,8 @@ def _run_job(args, job, judge_h: float) -> int:
     if job.hop_lift > 0:  # likewise
         header["hop lifted"] = f"runs lifted more than {job.hop_lift:g} mm, rapid {job.rapid:g}"
     if args.holder_radius is not None:  # likewise
-        header["holder"] = f"radius {args.holder_radius:g}" + (
+        header["holder"] = f"radius {args.holder_radius:g}" + "".join(
+            f", radius {r:g} from {at:g} above its face" for r, at in args.holder_step) + (
             "" if args.stick_out is None else f", stick-out {args.stick_out:g}: checked to clear the part")
     with all_or_nothing(args.output, args.report, args.plot, args.html):
         t = time.perf_counter()
@@ -241,7 +252,7 @@ def _run_job(args, job, judge_h: float) -> int:
             program = read_gcode(args.output)
         if args.holder_radius is not None:
             t = time.perf_counter()
-            report["holder"] = _holder(result.mesh, program, args.holder_radius, args.stick_out)
+            report["holder"] = _holder(result.mesh, program, args.holder_radius, args.stick_out, args.holder_step)
             report["timings_s"]["holder"] = time.perf_counter() - t
         if args.verify:
             t = time.perf_counter()
@@ -256,8 +267,10 @@ def _run_job(args, job, judge_h: float) -> int:
             info = {"pattern": job.pattern, "tool": f"ball R{job.tool_radius:g}", "scallop H": job.scallop,
                     "tolerance E": job.tolerance}
             if "holder" in report:
+                from conformill.cli.verify import holder_name
+
                 h = report["holder"]
-                info[f"holder R{h['radius']:g}"] = (f"stick-out {h['needed_stick_out']:.3f} mm needed "
+                info[f"holder {holder_name(h)}"] = (f"stick-out {h['needed_stick_out']:.3f} mm needed "
                                                     f"(line {h['worst_line']})")
             heat = None
             if args.verify:
@@ -278,18 +291,18 @@ def _run_job(args, job, judge_h: float) -> int:
     return 0
 
 
-def _holder(mesh, program, radius: float, stick_out: float | None) -> dict:
+def _holder(mesh, program, radius: float, stick_out: float | None, steps=()) -> dict:
     """The holder check on the program as written (:mod:`conformill.verify.holder`): its
     figures, or :class:`PlanningError` when the holder may meet the part at ``stick_out``."""
-    from conformill.cli.verify import holder_failure
+    from conformill.cli.verify import holder_failure, holder_name
     from conformill.verify.holder import holder_clearance
 
-    h = holder_clearance(mesh.V, mesh.F, program, radius, stick_out=stick_out).summary(stick_out)
+    h = holder_clearance(mesh.V, mesh.F, program, radius, stick_out=stick_out, steps=steps).summary(stick_out)
     if stick_out is not None and not h["clear"]:
         where = "" if h["worst_part"] is None else (
             f" (the part at ({', '.join(f'{x:.3f}' for x in h['worst_part'])}) within R of the move on line "
             f"{h['worst_line']})")
-        raise PlanningError(f"holder R{radius:g} at stick-out {stick_out:g} mm: {holder_failure(h)}{where}; "
+        raise PlanningError(f"holder {holder_name(h)} at stick-out {stick_out:g} mm: {holder_failure(h)}{where}; "
                             f"nothing written")
     return h
 
@@ -379,8 +392,10 @@ def _summary(rep: dict, out: str) -> None:
         f"{100 * rep['reachability']['concave_below_tool_radius_share']:.2f}%",
     ]
     if "holder" in rep:
+        from conformill.cli.verify import holder_name
+
         h = rep["holder"]
-        lines.append(f"  holder            R{h['radius']:g} needs a stick-out of {h['needed_stick_out']:.3f} mm "
+        lines.append(f"  holder            {holder_name(h)} needs a stick-out of {h['needed_stick_out']:.3f} mm "
                      f"(line {h['worst_line']})" + ("" if h.get("stick_out") is None else
                                                     f"; {h['stick_out']:g} mm clears it by {h['clearance']:.3f} mm"))
     if "verify" in rep:

@@ -50,6 +50,9 @@ def add_arguments(parser) -> None:
                         help="radius of the tool holder (its widest part that can come down to the part), mm: "
                              "report the stick-out (tip to holder face) the program needs for the holder to "
                              "clear the part on every move, and where it comes closest")
+    parser.add_argument("--holder-step", type=holder_step, action="append", default=[], metavar="R@H",
+                        help="with --holder-radius: a wider part of the holder, radius R from H mm above its face "
+                             "(repeat for each step; e.g. a collet nut, then the body)")
     parser.add_argument("--stick-out", type=float, default=None, metavar="L",
                         help="with --holder-radius: the tool's stick-out, mm; fail when the holder may meet the "
                              "part on any move")
@@ -150,10 +153,27 @@ def _xyz(p) -> str:
     return "(" + ", ".join(f"{x:.3f}" for x in p) + ")"
 
 
+def holder_step(text: str) -> tuple[float, float]:
+    """``--holder-step R@H``: a radius and a height (argparse reports anything else, exit 2)."""
+    import argparse
+
+    try:
+        r, at = text.split("@")
+        return float(r), float(at)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected R@H (radius @ height above the holder's face, mm), "
+                                         f"got {text!r}") from None
+
+
+def holder_name(h: dict) -> str:
+    """``R10`` or, for a stepped holder, ``R10, R17 from 25 mm``."""
+    return ", ".join([f"R{h['radius']:g}"] + [f"R{r:g} from {at:g} mm" for r, at in h.get("steps", [])])
+
+
 def holder_text(h: dict) -> str:
     """The holder check's figures (:meth:`conformill.verify.holder.HolderCheck.summary`) in a
     line or two of text."""
-    text = f"holder R{h['radius']:g}: needs a stick-out of {h['needed_stick_out']:.3f} mm"
+    text = f"holder {holder_name(h)}: needs a stick-out of {h['needed_stick_out']:.3f} mm"
     if h["worst_line"] is not None and h["worst_part"] is not None:
         text += (f" (the part at {_xyz(h['worst_part'])} within R of the move on line {h['worst_line']}, "
                  f"tip {_xyz(h['worst_tip'])})")
@@ -175,7 +195,7 @@ def holder_failure(h: dict) -> str:
 
 def run(args) -> int:
     from conformill.output.atomic import check_writable
-    from conformill.verify.holder import check_holder
+    from conformill.verify.holder import check_holder, check_steps
 
     _positive("--tool-radius", args.tool_radius)
     _positive("--scallop", args.scallop, allow_zero=True)
@@ -185,9 +205,10 @@ def run(args) -> int:
     _positive("--chord-tol", args.chord_tol)
     if args.samples < 1:
         raise ConformillError(f"--samples must be >= 1, got {args.samples}")
-    if args.stick_out is not None and args.holder_radius is None:
-        raise ConformillError("--stick-out needs --holder-radius (the holder whose clearance it sets)")
+    if (args.stick_out is not None or args.holder_step) and args.holder_radius is None:
+        raise ConformillError("--stick-out and --holder-step need --holder-radius (the holder's face)")
     check_holder(args.holder_radius, args.stick_out, args.tool_radius)
+    check_steps(args.holder_step)
     if args.rest and args.scallop is None:
         raise ConformillError("--rest needs --scallop (the rest is searched where more than H is left)")
     check_writable(args.report, args.plot)
@@ -221,10 +242,11 @@ def _check(args) -> int:
     if args.holder_radius is not None:
         from conformill.verify.holder import holder_clearance
 
-        h = holder_clearance(mesh.V, mesh.F, program, args.holder_radius, stick_out=args.stick_out)
+        h = holder_clearance(mesh.V, mesh.F, program, args.holder_radius, stick_out=args.stick_out,
+                             steps=args.holder_step)
         summary["holder"] = h.summary(args.stick_out)
         if args.stick_out is not None and not summary["holder"]["clear"]:
-            summary["failures"] = [*summary["failures"], f"holder R{args.holder_radius:g} at stick-out "
+            summary["failures"] = [*summary["failures"], f"holder {holder_name(summary['holder'])} at stick-out "
                                    f"{args.stick_out:g} mm: {holder_failure(summary['holder'])}"]
             summary["pass"] = False
     seconds = time.perf_counter() - t0

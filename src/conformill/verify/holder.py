@@ -10,6 +10,10 @@ holder unless ``p_z <= t_z(s) + L`` for every ``s`` at which it is within reach:
     L  >=  need(move) = max over p, s with |p_xy - t_xy(s)| <= R  of  p_z - t_z(s).
 
 The program needs the largest ``need`` over its moves (rapids, plunges and hops included).
+A stepped holder (a collet nut of radius R, then a body of radius R_k from h_k above the
+face) is a cylinder per step, each reaching up without end: it needs ``max_k (need_k -
+h_k)``, ``need_k`` being a cylinder of radius ``R_k``'s (conservative where a step is
+narrower than one below it).
 
 Bounds, not a sampling
 ----------------------
@@ -37,8 +41,8 @@ On the 620k-face igea program (886310 moves) the check takes 0.7-0.9 s on two co
 R = 8-25 mm, with or without a stick-out it clears; 8.5 s and 5.3 s for stick-outs that 22 %
 and 90 % of the moves cannot clear (README, "Holder clearance").
 
-The holder's taper, the spindle nose and the machine's travel are not modelled: give the
-radius of the widest part within the length that can come down to the part. Arcs are
+A taper is not modelled (give it as steps at its widest radius), nor are the spindle nose
+and the machine's travel. Arcs are
 checked on the chords the reader replaces them by (within its ``chord_tol``, 0.001 mm by
 default), so on an arc the reach is short by up to that much.
 
@@ -375,7 +379,9 @@ class HolderCheck:
     Attributes
     ----------
     radius : float
-        Holder radius R, mm.
+        Holder radius R, mm (at its face).
+    steps : tuple of (float, float)
+        The wider rings above the face, ``(R_k, h_k)`` (:func:`holder_clearance`).
     lower, upper : (k,) float64
         Per move of the program, bounds of the stick-out it needs (mm; module docstring).
         ``upper`` always bounds the move's need from above (0: the part is nowhere above the
@@ -401,6 +407,7 @@ class HolderCheck:
     """
 
     radius: float
+    steps: tuple
     lower: np.ndarray
     upper: np.ndarray
     line: np.ndarray
@@ -433,7 +440,8 @@ class HolderCheck:
 
     def summary(self, stick_out: float | None = None) -> dict:
         """The figures for a JSON report (``hits(stick_out)`` merged in when given)."""
-        out = {"radius": self.radius, "needed_stick_out": self.needed, "needed_lower": self.needed_lower,
+        out = {"radius": self.radius, "steps": [list(x) for x in self.steps], "needed_stick_out": self.needed,
+               "needed_lower": self.needed_lower,
                "worst_line": self.worst_line, "worst_tip": self.worst_tip, "worst_part": self.worst_part}
         if stick_out is not None:
             out.update(self.hits(stick_out))
@@ -473,46 +481,9 @@ def check_holder(radius, stick_out=None, tool_radius=None) -> None:
                               f"ball's radius, which this check does not model")
 
 
-def holder_clearance(V, F, program: Program, radius: float, stick_out: float | None = None, climb: float = 0.01,
-                     cell: float | None = None) -> HolderCheck:
-    """Bounds of the stick-out each move of ``program`` needs for a holder of radius ``radius``.
-
-    Parameters
-    ----------
-    V : (n, 3) float64
-        Part vertices, mm (program coordinates; +Z is the tool axis).
-    F : (m, 3) int64
-        Triangles.
-    program : Program
-        The program as read (:func:`conformill.verify.gcode.read_gcode`); every move counts.
-    radius : float
-        Holder radius R, mm.
-    stick_out : float, optional
-        The stick-out to be judged (:meth:`HolderCheck.hits`): the moves whose bounds
-        straddle it are resolved to ``climb`` too.
-    climb : float
-        Moves that travel in XY and climb more than this (mm) are checked again in pieces
-        that climb at most this much, where they matter (their upper bound above the
-        largest lower bound, or their bounds straddling ``stick_out``): then ``needed``
-        exceeds the need by at most this, plus the rounding of the arithmetic.
-    cell : float, optional
-        XY grid cell of the exact pass's triangle index (default ``max(R / 4, 2 x the mean
-        edge, 1/500 of the part's XY extent)``).
-
-    Returns
-    -------
-    HolderCheck
-
-    Raises
-    ------
-    ConformillError
-        When ``radius`` or ``stick_out`` is not a positive number.
-    """
-    check_holder(radius, stick_out)
-    V = np.ascontiguousarray(V, dtype=np.float64)
-    F = np.ascontiguousarray(F, dtype=np.int64)
-    A, B = program.segments(None)
-    A, B = np.ascontiguousarray(A), np.ascontiguousarray(B)
+def _ring(V, F, A, B, radius: float, stick_out, climb: float, cell):
+    """``(lower, upper, at)`` of one cylinder of radius ``radius`` whose face is at the tip
+    (:func:`holder_clearance`, which offsets the rings of a stepped holder)."""
     k = len(A)
     R = float(radius)
     lower, upper, at = np.zeros(k), np.zeros(k), np.full((k, 3), np.nan)
@@ -571,6 +542,88 @@ def holder_clearance(V, F, program: Program, radius: float, stick_out: float | N
             L = float(stick_out)
             exact(np.flatnonzero((upper > L) & (lower <= L)), L, np.inf, stop=L)
             exact(np.flatnonzero((upper > L) & (lower <= L)), L, float(climb), stop=L)
+    return lower, upper, at
+
+
+def check_steps(steps) -> None:
+    """Refuse a stepped holder's ring that is not ``(radius, height)`` with both positive
+    finite numbers, or two rings at the same height (bad input: exit code 2)."""
+    seen = set()
+    for st in steps:
+        if len(st) != 2:
+            raise ConformillError(f"a holder step is a radius and a height above the holder's face, got {st!r}")
+        for name, v in (("radius", st[0]), ("height", st[1])):
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+                raise ConformillError(f"a holder step's {name} must be a positive number of mm, got {v!r}")
+        if st[1] in seen:
+            raise ConformillError(f"two holder steps at {st[1]:g} mm above the face")
+        seen.add(st[1])
+
+
+def holder_clearance(V, F, program: Program, radius: float, stick_out: float | None = None, climb: float = 0.01,
+                     cell: float | None = None, steps=()) -> HolderCheck:
+    """Bounds of the stick-out each move of ``program`` needs for a holder of radius ``radius``.
+
+    A stepped holder (a collet nut, then a wider body) adds ``steps``: rings of radius
+    ``R_k`` whose lower face is ``h_k`` above the holder's face, each reaching up without
+    end. A ring needs ``L + h_k`` of what a cylinder of its radius needs, so the program
+    needs ``max_k (need_k - h_k)`` (conservative where a ring is narrower than one below it).
+
+    Parameters
+    ----------
+    V : (n, 3) float64
+        Part vertices, mm (program coordinates; +Z is the tool axis).
+    F : (m, 3) int64
+        Triangles.
+    program : Program
+        The program as read (:func:`conformill.verify.gcode.read_gcode`); every move counts.
+    radius : float
+        Holder radius R, mm.
+    stick_out : float, optional
+        The stick-out to be judged (:meth:`HolderCheck.hits`): the moves whose bounds
+        straddle it are resolved to ``climb`` too.
+    climb : float
+        Moves that travel in XY and climb more than this (mm) are checked again in pieces
+        that climb at most this much, where they matter (their upper bound above the
+        largest lower bound, or their bounds straddling ``stick_out``): then ``needed``
+        exceeds the need by at most this, plus the rounding of the arithmetic.
+    cell : float, optional
+        XY grid cell of the exact pass's triangle index (default ``max(R / 4, 2 x the mean
+        edge, 1/500 of the part's XY extent)``).
+    steps : sequence of (float, float)
+        ``(R_k, h_k)``: the wider rings above the face, ``h_k > 0`` mm above it.
+
+    Returns
+    -------
+    HolderCheck
+
+    Raises
+    ------
+    ConformillError
+        When ``radius``, ``stick_out``, a step's radius or height is not a positive number.
+    """
+    check_holder(radius, stick_out)
+    check_steps(steps)
+    rings = ((float(radius), 0.0),) + tuple((float(r), float(h)) for r, h in steps)
+    V = np.ascontiguousarray(V, dtype=np.float64)
+    F = np.ascontiguousarray(F, dtype=np.int64)
+    A, B = program.segments(None)
+    A, B = np.ascontiguousarray(A), np.ascontiguousarray(B)
+    k = len(A)
+    lower, upper, at = np.zeros(k), np.zeros(k), np.full((k, 3), np.nan)
+    which_ring = np.zeros(k, dtype=np.int64)
+    for j, (Rj, hj) in enumerate(rings):
+        lo_j, up_j, at_j = _ring(V, F, A, B, Rj, None if stick_out is None else stick_out + hj, climb, cell)
+        up_j, lo_j = up_j - hj, lo_j - hj
+        if j == 0:
+            lower, upper, at = lo_j, up_j, at_j
+            continue
+        more = up_j > upper
+        upper = np.where(more, up_j, upper)
+        at[more] = at_j[more]
+        which_ring[more] = j
+        lower = np.maximum(lower, lo_j)
+    upper, lower = np.maximum(upper, 0.0), np.maximum(lower, 0.0)
     worst, line, tip, part = -1, None, None, None
     if k:
         worst = int(np.lexsort((-lower, -upper))[0])  # the largest bound; of equal ones, the surest
@@ -579,8 +632,8 @@ def holder_clearance(V, F, program: Program, radius: float, stick_out: float | N
         t = a if a[2] <= b[2] else b
         if np.isfinite(at[worst, 0]):
             part = tuple(float(x) for x in at[worst])
-            t = _lowest_tip(a, b, at[worst], R)
+            t = _lowest_tip(a, b, at[worst], rings[which_ring[worst]][0])
         tip = tuple(float(x) for x in t)
-    return HolderCheck(radius=float(radius), lower=lower, upper=upper, line=np.asarray(program.line),
+    return HolderCheck(radius=float(radius), steps=rings[1:], lower=lower, upper=upper, line=np.asarray(program.line),
                        needed=float(upper.max()) if k else 0.0, needed_lower=float(lower.max()) if k else 0.0,
                        worst_move=worst, worst_line=line, worst_tip=tip, worst_part=part)

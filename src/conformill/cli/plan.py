@@ -84,17 +84,12 @@ def add_arguments(p) -> None:
                    help="turn the coolant on before the first move, after the spindle start when --spindle is given "
                         "(flood: M8, mist: M7), and off at the end (M9); "
                         "default: no coolant words")
-    p.add_argument("--holder-radius", type=float, default=None, metavar="R",
-                   help="radius of the tool holder (its widest part that can come down to the part), mm: check the "
-                        "written program and report the stick-out (tip to holder face) it needs for the holder to "
-                        "clear the part on every move")
-    p.add_argument("--holder-step", type=_holder_step, action="append", default=[], metavar="R@H",
-                   help="with --holder-radius: a wider part of the holder, radius R from H mm above its face (repeat "
-                        "for each step; e.g. a collet nut, then the body)")
-    p.add_argument("--stick-out", type=float, default=None, metavar="L",
-                   help="with --holder-radius: the tool's stick-out, mm; a program on which the holder may meet the "
-                        "part is refused (exit 3, nothing written), naming the first line and the stick-out that "
-                        "clears")
+    from conformill.cli.verify import add_holder_arguments
+
+    add_holder_arguments(p, "check the written program and report the stick-out (tip to holder face) it needs for the "
+                            "holder to clear the part on every move",
+                         "a program on which the holder may meet the part is refused (exit 3, nothing written), naming "
+                         "the first line and the stick-out that clears")
     p.add_argument("--max-step", type=float, default=10.0, metavar="L", help="longest forward step, mm (10)")
     p.add_argument("--threads", type=int, default=None, metavar="N",
                    help="threads for parallel stages (default all; with 1 the cutter runs after the pattern stage, "
@@ -123,12 +118,6 @@ def _blend(text: str):
         return float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected a number (mm) or off, got {text!r}") from None
-
-
-def _holder_step(text: str):
-    from conformill.cli.verify import holder_step
-
-    return holder_step(text)
 
 
 def _corners(text):

@@ -46,16 +46,9 @@ def add_arguments(parser) -> None:
                         help="with --scallop: search the ball positions at every reachable sample left above H "
                              "and report the program's own share above the least material any ball leaves; "
                              "pass/fail does not change")
-    parser.add_argument("--holder-radius", type=float, default=None, metavar="R",
-                        help="radius of the tool holder (its widest part that can come down to the part), mm: "
-                             "report the stick-out (tip to holder face) the program needs for the holder to "
-                             "clear the part on every move, and where it comes closest")
-    parser.add_argument("--holder-step", type=holder_step, action="append", default=[], metavar="R@H",
-                        help="with --holder-radius: a wider part of the holder, radius R from H mm above its face "
-                             "(repeat for each step; e.g. a collet nut, then the body)")
-    parser.add_argument("--stick-out", type=float, default=None, metavar="L",
-                        help="with --holder-radius: the tool's stick-out, mm; fail when the holder may meet the "
-                             "part on any move")
+    add_holder_arguments(parser, "report the stick-out (tip to holder face) the program needs for the holder to clear "
+                                 "the part on every move, and where it comes closest",
+                         "fail when the holder may meet the part on any move")
     parser.add_argument("--report", default=None, metavar="OUT.json", help="write a JSON report")
     parser.add_argument("--plot", default=None, metavar="OUT.png", help="write a PNG heat map")
 
@@ -151,6 +144,18 @@ def table(summary: dict) -> str:
 
 def _xyz(p) -> str:
     return "(" + ", ".join(f"{x:.3f}" for x in p) + ")"
+
+
+def add_holder_arguments(parser, does: str, short: str) -> None:
+    """``--holder-radius``, ``--holder-step`` and ``--stick-out`` (plan and verify): ``does``
+    says what the check gives, ``short`` what a stick-out the holder may not clear does."""
+    parser.add_argument("--holder-radius", type=float, default=None, metavar="R",
+                        help=f"radius of the tool holder at its face, mm: {does}")
+    parser.add_argument("--holder-step", type=holder_step, action="append", default=[], metavar="R@H",
+                        help="with --holder-radius: a wider part of the holder, radius R from H mm above its face "
+                             "(repeat for each step; e.g. a collet nut, then the body)")
+    parser.add_argument("--stick-out", type=float, default=None, metavar="L",
+                        help=f"with --holder-radius: the tool's stick-out, mm; {short}")
 
 
 def holder_step(text: str) -> tuple[float, float]:

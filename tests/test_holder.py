@@ -63,7 +63,10 @@ def test_stepped_holder_needs_its_worst_ring(k, ring):
     want = (5.0 * k, 10.0 * k - 4.0)
     assert h.needed == pytest.approx(max(want), abs=1e-6) and h.needed_lower == pytest.approx(max(want), abs=1e-6)
     assert h.worst_part[0] == pytest.approx((5.0, 10.0)[ring], abs=1e-6)  # the rim of the ring that sets it
-    assert h.summary()["steps"] == [[10.0, 4.0]]
+    assert h.summary()["steps"] == [[10.0, 4.0]] and h.worst_ring == ((5.0, 0.0), (10.0, 4.0))[ring]
+    # steps given as a generator of numpy numbers: the same (review of session 33)
+    g = holder_clearance(V, F, prog, 5.0, steps=((np.float32(10), np.int64(4)) for _ in range(1)), climb=1e-6)
+    assert g.needed == pytest.approx(h.needed, abs=1e-6)
     # a stick-out between the two rings' needs is refused for the ring that needs more
     mid = (5.0 * k + 10.0 * k - 4.0) / 2
     assert not h.hits(mid)["clear"]
@@ -75,7 +78,9 @@ def test_bad_holder_steps():
     V, F = _tilted_square(1.0)
     prog = _program([[0.0, 1.0, 0.0]], start=[0.0, 0.0, 0.0])
     for bad, word in [([(10.0,)], "a radius and a height"), ([(10.0, 0.0)], "height must be a positive"),
-                      ([(-1.0, 3.0)], "radius must be a positive"), ([(10.0, 3.0), (12.0, 3.0)], "two holder steps")]:
+                      ([(-1.0, 3.0)], "radius must be a positive"), ([(10.0, 3.0), (12.0, 3.0)], "two holder steps"),
+                      ((10, 4), "a radius and a height"), ([(5.0, 3.0)], "no wider than the holder below"),
+                      ([(12.0, 8.0), (9.0, 9.0)], "no wider than the holder below")]:
         with pytest.raises(ConformillError, match=word):
             holder_clearance(V, F, prog, 5.0, steps=bad)
 
@@ -216,7 +221,7 @@ def test_plan_reports_the_stick_out_and_refuses_a_short_one(dome, tmp_path, caps
     assert f"stick-out {float(long_enough):g}: checked to clear the part" in (tmp_path / "p.nc").read_text()
     assert json.loads((tmp_path / "r.json").read_text())["holder"]["clear"] is True
     assert _plan(dome, tmp_path, "--holder-radius", "10", "--holder-step", "30@2") == 0  # a stepped holder
-    assert "(param holder: radius 10, radius 30 from 2 above its face)" in (tmp_path / "p.nc").read_text()
+    assert "(param holder: radius 10, radius 30 from 2 mm above its face)" in (tmp_path / "p.nc").read_text()
     stepped = json.loads((tmp_path / "r.json").read_text())["holder"]
     assert stepped["steps"] == [[30, 2]] and stepped["needed_stick_out"] >= need - 1e-3
     for f in ("p.nc", "r.json", "v.html"):

@@ -159,7 +159,7 @@ def run(args) -> int:
     from conformill.verify.holder import check_holder, check_steps
 
     check_holder(args.holder_radius, args.stick_out, job.tool_radius)
-    check_steps(args.holder_step)
+    check_steps(args.holder_step, args.holder_radius)
     if args.verify_scallop is not None:  # asking for a judged height is asking for the check
         args.verify = True
     if args.verify and args.verify_samples < 1:
@@ -218,7 +218,7 @@ def _run_job(args, job, judge_h: float) -> int:
         header["hop lifted"] = f"runs lifted more than {job.hop_lift:g} mm, rapid {job.rapid:g}"
     if args.holder_radius is not None:  # likewise
         header["holder"] = f"radius {args.holder_radius:g}" + "".join(
-            f", radius {r:g} from {at:g} above its face" for r, at in args.holder_step) + (
+            f", radius {r:g} from {at:g} mm above its face" for r, at in args.holder_step) + (
             "" if args.stick_out is None else f", stick-out {args.stick_out:g}: checked to clear the part")
     with all_or_nothing(args.output, args.report, args.plot, args.html):
         t = time.perf_counter()
@@ -283,14 +283,14 @@ def _run_job(args, job, judge_h: float) -> int:
 def _holder(mesh, program, radius: float, stick_out: float | None, steps=()) -> dict:
     """The holder check on the program as written (:mod:`conformill.verify.holder`): its
     figures, or :class:`PlanningError` when the holder may meet the part at ``stick_out``."""
-    from conformill.cli.verify import holder_failure, holder_name
+    from conformill.cli.verify import holder_failure, holder_name, ring_name
     from conformill.verify.holder import holder_clearance
 
     h = holder_clearance(mesh.V, mesh.F, program, radius, stick_out=stick_out, steps=steps).summary(stick_out)
     if stick_out is not None and not h["clear"]:
         where = "" if h["worst_part"] is None else (
-            f" (the part at ({', '.join(f'{x:.3f}' for x in h['worst_part'])}) within R of the move on line "
-            f"{h['worst_line']})")
+            f" (the part at ({', '.join(f'{x:.3f}' for x in h['worst_part'])}) within {ring_name(h)} of the move "
+            f"on line {h['worst_line']})")
         raise PlanningError(f"holder {holder_name(h)} at stick-out {stick_out:g} mm: {holder_failure(h)}{where}; "
                             f"nothing written")
     return h

@@ -175,13 +175,19 @@ def holder_name(h: dict) -> str:
     return ", ".join([f"R{h['radius']:g}"] + [f"R{r:g} from {at:g} mm" for r, at in h.get("steps", [])])
 
 
+def ring_name(h: dict) -> str:
+    """The cylinder that sets the need: ``R16`` or ``R25 (15 mm above the face)``."""
+    r, at = h.get("worst_ring") or (h["radius"], 0.0)
+    return f"R{r:g}" + (f" ({at:g} mm above the face)" if at else "")
+
+
 def holder_text(h: dict) -> str:
     """The holder check's figures (:meth:`conformill.verify.holder.HolderCheck.summary`) in a
     line or two of text."""
     text = f"holder {holder_name(h)}: needs a stick-out of {h['needed_stick_out']:.3f} mm"
     if h["worst_line"] is not None and h["worst_part"] is not None:
-        text += (f" (the part at {_xyz(h['worst_part'])} within R of the move on line {h['worst_line']}, "
-                 f"tip {_xyz(h['worst_tip'])})")
+        text += (f" (the part at {_xyz(h['worst_part'])} within {ring_name(h)} of the move on line "
+                 f"{h['worst_line']}, tip {_xyz(h['worst_tip'])})")
     if h.get("stick_out") is not None:
         if h["clear"]:
             text += f"\n  stick-out {h['stick_out']:g} mm: clears the part by {h['clearance']:.3f} mm"
@@ -213,7 +219,7 @@ def run(args) -> int:
     if (args.stick_out is not None or args.holder_step) and args.holder_radius is None:
         raise ConformillError("--stick-out and --holder-step need --holder-radius (the holder's face)")
     check_holder(args.holder_radius, args.stick_out, args.tool_radius)
-    check_steps(args.holder_step)
+    check_steps(args.holder_step, args.holder_radius)
     if args.rest and args.scallop is None:
         raise ConformillError("--rest needs --scallop (the rest is searched where more than H is left)")
     check_writable(args.report, args.plot)

@@ -12,8 +12,8 @@ holder unless ``p_z <= t_z(s) + L`` for every ``s`` at which it is within reach:
 The program needs the largest ``need`` over its moves (rapids, plunges and hops included).
 A stepped holder (a collet nut of radius R, then a body of radius R_k from h_k above the
 face) is a cylinder per step, each reaching up without end: it needs ``max_k (need_k -
-h_k)``, ``need_k`` being a cylinder of radius ``R_k``'s (conservative where a step is
-narrower than one below it).
+h_k)``, ``need_k`` being a cylinder of radius ``R_k``'s (each step wider than the one
+below it: a narrower one could never meet the part first, and is refused).
 
 Bounds, not a sampling
 ----------------------
@@ -53,6 +53,7 @@ Nothing here imports the planner: the check reads the program as written
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass
 
 import numba as nb
@@ -404,6 +405,10 @@ class HolderCheck:
         The point of the part where that move's upper bound is reached (x, y, z): an end of
         a triangle edge's span in reach, a support point of the reach or a move's end under
         a triangle; None when the part is nowhere above the tip within R.
+    worst_ring : tuple of float or None
+        ``(R_k, h_k)`` of the cylinder that sets the need there (``(radius, 0)`` for the
+        holder's face): the point is within ``R_k`` of ``worst_tip`` and ``needed + h_k``
+        above it, up to the climb.
     """
 
     radius: float
@@ -417,6 +422,7 @@ class HolderCheck:
     worst_line: int | None
     worst_tip: tuple | None
     worst_part: tuple | None
+    worst_ring: tuple | None = None
 
     def hits(self, stick_out: float) -> dict:
         """What a stick-out of ``stick_out`` mm gives: clearance and the moves that may hit.
@@ -442,7 +448,8 @@ class HolderCheck:
         """The figures for a JSON report (``hits(stick_out)`` merged in when given)."""
         out = {"radius": self.radius, "steps": [list(x) for x in self.steps], "needed_stick_out": self.needed,
                "needed_lower": self.needed_lower,
-               "worst_line": self.worst_line, "worst_tip": self.worst_tip, "worst_part": self.worst_part}
+               "worst_line": self.worst_line, "worst_tip": self.worst_tip, "worst_part": self.worst_part,
+               "worst_ring": None if self.worst_ring is None else list(self.worst_ring)}
         if stick_out is not None:
             out.update(self.hits(stick_out))
         return out
@@ -545,19 +552,37 @@ def _ring(V, F, A, B, radius: float, stick_out, climb: float, cell):
     return lower, upper, at
 
 
-def check_steps(steps) -> None:
-    """Refuse a stepped holder's ring that is not ``(radius, height)`` with both positive
-    finite numbers, or two rings at the same height (bad input: exit code 2)."""
-    seen = set()
+def _positive_mm(v) -> bool:
+    return isinstance(v, numbers.Real) and not isinstance(v, (bool, np.bool_)) and math.isfinite(v) and v > 0
+
+
+def check_steps(steps, radius=None) -> list:
+    """The steps of a stepped holder as ``[(R_k, h_k), ...]``; refuses (bad input: exit code
+    2) a step that is not a radius and a height, both positive numbers, two steps at one
+    height, or a step no wider than the holder below it (``radius`` its face's; such a step
+    could never touch the part first)."""
+    out = []
     for st in steps:
-        if len(st) != 2:
-            raise ConformillError(f"a holder step is a radius and a height above the holder's face, got {st!r}")
-        for name, v in (("radius", st[0]), ("height", st[1])):
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+        try:
+            r, at = st
+        except (TypeError, ValueError):
+            raise ConformillError(f"a holder step is a radius and a height above the holder's face, got {st!r}") \
+                from None
+        for name, v in (("radius", r), ("height", at)):
+            if not _positive_mm(v):
                 raise ConformillError(f"a holder step's {name} must be a positive number of mm, got {v!r}")
-        if st[1] in seen:
-            raise ConformillError(f"two holder steps at {st[1]:g} mm above the face")
-        seen.add(st[1])
+        out.append((float(r), float(at)))
+    heights = [at for _, at in out]
+    if len(set(heights)) < len(heights):
+        raise ConformillError(f"two holder steps at one height above the face: {sorted(heights)}")
+    if radius is not None:
+        wide = float(radius)
+        for r, at in sorted(out, key=lambda x: x[1]):
+            if r <= wide:
+                raise ConformillError(f"the holder step of radius {r:g} mm at {at:g} mm above the face is no wider "
+                                      f"than the holder below it ({wide:g} mm): it could never meet the part first")
+            wide = r
+    return out
 
 
 def holder_clearance(V, F, program: Program, radius: float, stick_out: float | None = None, climb: float = 0.01,
@@ -566,8 +591,8 @@ def holder_clearance(V, F, program: Program, radius: float, stick_out: float | N
 
     A stepped holder (a collet nut, then a wider body) adds ``steps``: rings of radius
     ``R_k`` whose lower face is ``h_k`` above the holder's face, each reaching up without
-    end. A ring needs ``L + h_k`` of what a cylinder of its radius needs, so the program
-    needs ``max_k (need_k - h_k)`` (conservative where a ring is narrower than one below it).
+    end, each wider than the one below it. A ring needs ``L + h_k`` of what a cylinder of
+    its radius needs, so the program needs ``max_k (need_k - h_k)``.
 
     Parameters
     ----------
@@ -603,8 +628,7 @@ def holder_clearance(V, F, program: Program, radius: float, stick_out: float | N
         When ``radius``, ``stick_out``, a step's radius or height is not a positive number.
     """
     check_holder(radius, stick_out)
-    check_steps(steps)
-    rings = ((float(radius), 0.0),) + tuple((float(r), float(h)) for r, h in steps)
+    rings = ((float(radius), 0.0),) + tuple(check_steps(steps, radius))
     V = np.ascontiguousarray(V, dtype=np.float64)
     F = np.ascontiguousarray(F, dtype=np.int64)
     A, B = program.segments(None)
@@ -624,16 +648,17 @@ def holder_clearance(V, F, program: Program, radius: float, stick_out: float | N
         which_ring[more] = j
         lower = np.maximum(lower, lo_j)
     upper, lower = np.maximum(upper, 0.0), np.maximum(lower, 0.0)
-    worst, line, tip, part = -1, None, None, None
+    worst, line, tip, part, ring = -1, None, None, None, None
     if k:
         worst = int(np.lexsort((-lower, -upper))[0])  # the largest bound; of equal ones, the surest
         line = int(program.line[worst])
         a, b = A[worst], B[worst]
         t = a if a[2] <= b[2] else b
-        if np.isfinite(at[worst, 0]):
+        if np.isfinite(at[worst, 0]) and upper[worst] > 0:
             part = tuple(float(x) for x in at[worst])
             t = _lowest_tip(a, b, at[worst], rings[which_ring[worst]][0])
+            ring = rings[which_ring[worst]]
         tip = tuple(float(x) for x in t)
     return HolderCheck(radius=float(radius), steps=rings[1:], lower=lower, upper=upper, line=np.asarray(program.line),
                        needed=float(upper.max()) if k else 0.0, needed_lower=float(lower.max()) if k else 0.0,
-                       worst_move=worst, worst_line=line, worst_tip=tip, worst_part=part)
+                       worst_move=worst, worst_line=line, worst_tip=tip, worst_part=part, worst_ring=ring)

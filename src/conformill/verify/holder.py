@@ -143,12 +143,13 @@ def _edge_span(px, py, qx, qy, ax, ay, bx, by, R):
     return lo, hi
 
 
-@nb.njit(cache=True, inline="always")
-def _need(px, py, pz, ax, ay, az, dx, dy, dz, dd, R2):
-    """``p_z - min t_z(s)`` over the s at which the point p (within reach of the move, up to
-    rounding) is within R of the tip: the ends of that interval, t_z being linear."""
+@nb.njit(cache=True)
+def _reach_span(px, py, ax, ay, dx, dy, dd, R2):
+    """The s in [0, 1] at which the point p (within reach of the move, up to rounding) is
+    within R of the tip ``a + s d`` in XY: all of them for a move without XY travel, else an
+    interval (its nearest s in XY should rounding leave it empty)."""
     if dd <= 1e-24:
-        return pz - min(az, az + dz)
+        return 0.0, 1.0
     wx, wy = px - ax, py - ay
     wd = wx * dx + wy * dy
     disc = max(0.0, wd * wd - dd * (wx * wx + wy * wy - R2))
@@ -156,6 +157,13 @@ def _need(px, py, pz, ax, ay, az, dx, dy, dz, dd, R2):
     s0, s1 = max(0.0, (wd - sq) / dd), min(1.0, (wd + sq) / dd)
     if s0 > s1:  # at the rim, by rounding: the nearest s
         s0 = s1 = min(1.0, max(0.0, wd / dd))
+    return s0, s1
+
+
+@nb.njit(cache=True, inline="always")
+def _need(px, py, pz, ax, ay, az, dx, dy, dz, dd, R2):
+    """``p_z - min t_z(s)`` over :func:`_reach_span`: its ends, t_z being linear."""
+    s0, s1 = _reach_span(px, py, ax, ay, dx, dy, dd, R2)
     return pz - min(az + s0 * dz, az + s1 * dz)
 
 
@@ -457,20 +465,11 @@ class HolderCheck:
 
 def _lowest_tip(a, b, p, R: float) -> np.ndarray:
     """The lowest tip of the move ab from which the part point p is within R in XY (an end of
-    that interval of the move, t_z being linear; its nearest in XY should rounding leave the
-    interval empty)."""
-    d, w = (b - a)[:2], (p - a)[:2]
-    dd = float(d @ d)
-    if dd <= 1e-24:
-        s0, s1 = 0.0, 1.0
-    else:
-        wd = float(w @ d)
-        disc = wd * wd - dd * (float(w @ w) - R * R)
-        sq = math.sqrt(max(disc, 0.0))
-        s0, s1 = max(0.0, (wd - sq) / dd), min(1.0, (wd + sq) / dd)
-        if s0 > s1:
-            s0 = s1 = min(1.0, max(0.0, wd / dd))
-    t0, t1 = a + s0 * (b - a), a + s1 * (b - a)
+    :func:`_reach_span`, t_z being linear)."""
+    d = b - a
+    s0, s1 = _reach_span(float(p[0]), float(p[1]), float(a[0]), float(a[1]), float(d[0]), float(d[1]),
+                         float(d[0] * d[0] + d[1] * d[1]), float(R * R))
+    t0, t1 = a + s0 * d, a + s1 * d
     return t0 if t0[2] <= t1[2] else t1
 
 
@@ -480,7 +479,7 @@ def check_holder(radius, stick_out=None, tool_radius=None) -> None:
     for name, v in (("holder radius", radius), ("stick-out", stick_out)):
         if v is None:
             continue
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+        if not _positive_mm(v):
             raise ConformillError(f"the {name} must be a positive number of mm, got {v!r}")
     if radius is not None and tool_radius is not None and radius <= tool_radius:
         raise ConformillError(f"the holder radius ({radius:g} mm) must be larger than the tool radius "
@@ -514,10 +513,11 @@ def _ring(V, F, A, B, radius: float, stick_out, climb: float, cell):
         g0, gn, ttop, cstart, ctri, ctop = _grid(V, F, cell)
         grid = (float(g0[0]), float(g0[1]), float(cell), int(gn[0]), int(gn[1]), cstart, ctri, ctop)
 
+        out = np.zeros((k, 5))  # rows of the moves checked, each written whole by _one
+
         def exact(which, floor, dz_max, stop=np.inf):
             if not len(which):
                 return
-            out = np.zeros((k, 5))
             _all(which, A, B, V, F, ttop, R, dz_max, floor, stop, *grid, out)
             o = out[which]
             done = o[:, 0] <= stop  # not stopped early: the upper bound holds

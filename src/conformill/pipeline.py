@@ -21,7 +21,7 @@ from conformill.output.gcode import coolant_on, path_control, tool_number
 from conformill.patterns.family import Planner
 from conformill.passes import PassBuilder, threads_can_overlap
 from conformill.planning.steps import check_params, side_interval
-from conformill.types import PENCIL_SEARCHES, Mesh, PathParams, PlanResult, ToolPath
+from conformill.types import PENCIL_SEARCHES, Mesh, PlanResult, ToolPath
 
 log = logging.getLogger(__name__)
 
@@ -147,6 +147,14 @@ class Job:
         Coolant on before the first move, after the spindle start when ``spindle`` is given
         (``M8`` / ``M7``), and off at the end (``M9``);
         None (default): the program leaves the coolant to the operator.
+    stock : float
+        Material left on the part (mm, default 0): the program finishes the part's offset
+        by ``stock`` along its normal, for a semi-finishing pass; negative values cut into
+        the part (an EDM electrode's spark gap), down to above ``-tool_radius``. The
+        cutter places the centres of a ball of radius ``tool_radius + stock`` on the part
+        (so the ball stays ``stock`` from it, less the gouge budget), the tips are written
+        ``tool_radius`` below them, and the paths are spaced for the scallop on the
+        offset (:func:`conformill.planning.steps.side_interval_stock`).
     """
 
     pattern: str = "spiral"
@@ -176,6 +184,7 @@ class Job:
     blend: float | str | None = None
     tool_number: int | None = None
     coolant: str | None = None
+    stock: float = 0.0
 
     @property
     def plunge_rate(self) -> float:
@@ -214,7 +223,7 @@ def check_job(job: Job) -> None:
     """Refuse a job that cannot be met (PlanningError, exit 3)."""
     if job.pattern not in PATTERNS:
         raise PlanningError(f"unknown pattern {job.pattern!r}; choose one of {', '.join(PATTERNS)}")
-    check_params(job.tool_radius, job.scallop, job.tolerance)
+    check_params(job.tool_radius, job.scallop, job.tolerance, job.stock)
     for name in ("feed", "max_step", "clearance", "rapid"):
         v = getattr(job, name)
         if not np.isfinite(v) or v <= 0:
@@ -415,8 +424,11 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
 
     check_job(job)
     timer = _Timer()
-    r, h, e = job.tool_radius, job.scallop, job.tolerance
-    params = PathParams(tool_radius=r, scallop=h, tolerance=e)
+    params = check_params(job.tool_radius, job.scallop, job.tolerance, job.stock)
+    r, h, e, stock = params.tool_radius, params.scallop, params.tolerance, params.stock
+    # the cutter places the centres of a ball of radius r + stock on the part: the ball of
+    # radius r then rolls on the part's offset by the stock; tips are written r below them
+    r_cut = r + stock
     say = progress or (lambda stage, frac: None)
 
     with timer("orient"):
@@ -434,9 +446,11 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
                         2.0 * r)
 
     zmax = float(mesh.V[:, 2].max())
-    safe_z = zmax + job.clearance if job.safe_z is None else float(job.safe_z)
-    if safe_z < zmax + 0.5:
-        raise PlanningError(f"safe-z {safe_z:.4f} is not above the part top {zmax:.4f} by 0.5 mm")
+    top = zmax + max(stock, 0.0)  # the part as it stands before this program: with its stock
+    safe_z = top + job.clearance if job.safe_z is None else float(job.safe_z)
+    if safe_z < top + 0.5:
+        raise PlanningError(f"safe-z {safe_z:.4f} is not above the part top {top:.4f} by 0.5 mm"
+                            + (f" (with its {stock:g} mm of stock)" if stock > 0 else ""))
 
     flat_ls = float(side_interval(h, r, np.zeros(1))[0][0])
     _check_size(mesh, total_area, flat_ls)
@@ -454,7 +468,7 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
     # forward steps and the cutter run on each piece as the pattern stage finishes it,
     # in a worker thread where numba allows (passes.py; it builds the cutter's index while
     # the map is solved); the program is the same either way
-    builder = PassBuilder(lambda: BallCutter(mesh.V, mesh.F, r), e, e_fwd, e_cvx, job.max_step, link_max,
+    builder = PassBuilder(lambda: BallCutter(mesh.V, mesh.F, r_cut), e, e_fwd, e_cvx, job.max_step, link_max,
                           threaded=threads_can_overlap(), settle_tol=job.settle * h,
                           hop_lift=job.hop_lift, rates=(job.feed, job.plunge_rate, job.rapid))
     background = None
@@ -498,13 +512,14 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
         with timer("reachability"):
             fr = surface.frame
             kmax_v = principal_concave(np.column_stack([fr.E, fr.F, fr.G]), np.column_stack([fr.L, fr.M, fr.N]))
-            unreach_v = kmax_v >= 1.0 / r
+            unreach_v = kmax_v >= 1.0 / r_cut  # the ball on the offset: r_cut on the part
             unreach_f = unreach_v[fmesh.F].sum(1) >= 2
             unreach_share = float(ffa[unreach_f].sum() / total_area)
             regions = _regions(unreach_f, fmesh, ffa)
             if unreach_share > 0:
-                log.warning("%.2f%% of the surface is concave with a radius at or below the tool radius %.3g mm: "
-                            "the ball cannot follow it there (largest region near %s)%s", 100 * unreach_share, r,
+                log.warning("%.2f%% of the surface is concave with a radius at or below the tool radius%s %.3g mm: "
+                            "the ball cannot follow it there (largest region near %s)%s", 100 * unreach_share,
+                            " plus the stock" if stock else "", r_cut,
                             np.round(regions[0]["centre"], 2).tolist() if regions else "?",
                             "" if job.pencil else "; --pencil adds passes where the ball wedges against them")
 
@@ -560,7 +575,7 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
 
             say("pencil", 0.0)
             with timer("pencil"):  # beside the other stages: the wait for the search and links
-                cutter = builder.cutter if builder.cutter is not None else BallCutter(mesh.V, mesh.F, r)
+                cutter = builder.cutter if builder.cutter is not None else BallCutter(mesh.V, mesh.F, r_cut)
                 start = passes[-1][-1, :2] if passes else mesh.V[:, :2].mean(axis=0)
                 if filtered:  # the centres where the pattern left more than pencil_left h
                     wait = (lambda f: say("pencil", 0.8 * f))
@@ -570,7 +585,7 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
                     else:
                         found = pencil_search(cutter, *search_args, **search_kw, progress=wait)
                     with timer("pencil_left"):
-                        keep = where_left(found, passes, r, job.pencil_left * h)
+                        keep = where_left(found, passes, r_cut, job.pencil_left * h)
                     found = replace(found, stats={**found.stats, "left_h": float(job.pencil_left),
                                                   "fold_points_cut": int(np.count_nonzero(keep & found.probed))})
                     found = chains_of(cutter, found, 1, job.settle * h, keep)
@@ -587,6 +602,10 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
                 passes = passes + [cutter.tip(p) for p in pencil.passes]
                 pass_ids = pass_ids + [-1] * len(pencil.passes)
                 hops = hops + [None] * len(pencil.passes)
+    if stock:  # the tips so far are those of the ball of radius r_cut: the ball of radius r is stock higher
+        lift = np.array([0.0, 0.0, stock])
+        passes = [p + lift for p in passes]
+        hops = [None if hp is None else tuple(z + stock for z in hp) for hp in hops]
     toolpath = ToolPath(passes=passes, safe_z=safe_z, pass_ids=pass_ids, hops=hops)
 
     # -- figures -----------------------------------------------------------------
@@ -610,7 +629,7 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
                 "fit": job.fit, "pencil": job.pencil, "pencil_density": job.pencil_density,
                 "pencil_search": job.pencil_search, "pencil_left": job.pencil_left,
                 "blend": "off" if job.blend_tolerance is None else job.blend_tolerance,
-                "tool_number": job.tool_number, "coolant": job.coolant},
+                "tool_number": job.tool_number, "coolant": job.coolant, "stock": stock},
         "orientation": orient_info,
         "parameterization": {"boundary": param.kind, "domain": param.domain, "corners": param.corners,
                              "solver": param.solver, "residual": param.residual, "fallbacks": param.fallbacks,

@@ -143,11 +143,14 @@ class SurfaceFrame:
 
 @dataclass(frozen=True)
 class PathParams:
-    """Cutting parameters, mm. Ball-end cutter of radius ``tool_radius``."""
+    """Cutting parameters, mm. Ball-end cutter of radius ``tool_radius``; ``stock`` is the
+    material left on the part (the paths are spaced for ``scallop`` on the surface offset by
+    ``stock``; negative: the ball cuts that far into the part, as for an EDM electrode)."""
 
     tool_radius: float
     scallop: float
     tolerance: float
+    stock: float = 0.0
 
 
 @dataclass(frozen=True, eq=False)

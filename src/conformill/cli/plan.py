@@ -16,6 +16,11 @@ def add_arguments(p) -> None:
     p.add_argument("--tool-radius", type=float, required=True, metavar="R", help="ball radius, mm")
     p.add_argument("--scallop", type=float, required=True, metavar="H", help="scallop height, mm")
     p.add_argument("--tolerance", type=float, default=0.01, metavar="E", help="chord deviation, mm (0.01)")
+    p.add_argument("--stock", type=float, default=0.0, metavar="S",
+                   help="material to leave on the part, mm (default 0): the program finishes the part offset by S "
+                        "along its normal (a semi-finish before the finish), with the scallop H on that offset and "
+                        "the ball never nearer the part than S less E/2; negative: cut S into the part (an EDM "
+                        "electrode's gap), above minus the tool radius. --verify judges it on the offset")
     p.add_argument("--feed", type=float, default=1000.0, metavar="F", help="cutting feed, mm/min (1000)")
     p.add_argument("--plunge-feed", type=float, default=None, metavar="F", help="plunge feed (feed/3)")
     p.add_argument("--spindle", type=float, default=None, metavar="RPM", help="spindle speed (M3 S...)")
@@ -149,7 +154,7 @@ def run(args) -> int:
               concave_steps=args.concave_steps, spacing=args.spacing, settle=args.settle, fit=args.fit,
               pencil=args.pencil, pencil_density=args.pencil_density, hop_lift=args.hop_lifted,
               rapid=args.rapid, pencil_left=args.pencil_left, blend=args.blend, tool_number=args.tool_number,
-              coolant=args.coolant,
+              coolant=args.coolant, stock=args.stock,
               **({} if args.pencil_search is None else {"pencil_search": args.pencil_search}))
     from conformill.pipeline import check_job
 
@@ -209,6 +214,9 @@ def _run_job(args, job, judge_h: float) -> int:
     }
     if job.coolant is not None:  # only then: the programs without it keep their bytes
         header["coolant"] = job.coolant
+    if job.stock:  # likewise
+        header["stock"] = (f"{job.stock:g} mm left on the part (the ball R{job.tool_radius:g} finishes its offset)"
+                           if job.stock > 0 else f"{-job.stock:g} mm cut into the part (negative stock)")
     if job.pencil:  # only then: the default program's bytes stay as they were
         header["pencil"] = (f"samples per mm2 {job.pencil_density:g}" if job.pencil_search == "samples"
                             else f"folds, grid points per mm2 {job.pencil_density:g}")
@@ -263,7 +271,7 @@ def _run_job(args, job, judge_h: float) -> int:
                                                     f"(line {h['worst_line']})")
             heat = None
             if args.verify:
-                heat, figures = vertex_heat(result.mesh, program, job.tool_radius)
+                heat, figures = vertex_heat(result.mesh, program, job.tool_radius, stock=job.stock)
                 info.update(figures)
                 info["verify"] = "PASS" if report["verify"]["pass"] else "FAIL"
             write_viewer(args.html, result.mesh.V, result.mesh.F, passes, rapids=rapids, heat=heat,
@@ -313,13 +321,14 @@ def _verify(mesh, program, job, n_samples: int, quiet: bool, judge_h: float) -> 
 
     with sample_bar(n_samples, "verify", enabled=not quiet) as update:
         res = verify(mesh, program, job.tool_radius, n_samples=n_samples, scallop=SCALLOP_SLACK * judge_h,
-                     gouge=job.tolerance, progress=update, judge="reachable")
+                     gouge=job.tolerance, progress=update, judge="reachable", stock=job.stock)
     s = res.summary
     keep = ("samples", "interior_samples", "scallop", "scallop_mean", "uncut_fraction", "above_scallop_fraction",
             "gouge_max", "gouge_where", "gouge_line", "rapid_min_clearance", "rapid_min_line",
             "retract_min_clearance", "n_rapids", "n_retracts", "thresholds", "judged_on", "failures", "pass")
     out = {k: s[k] if k in s else s["interior"].get(k) for k in keep}
     out["judged_h"] = judge_h
+    out["stock"] = job.stock
     out["scallop_over_h"] = {k: v / judge_h for k, v in s["scallop"].items()}
     q = s["reachable"]
     out["reachable"] = {"unreachable_fraction": q["unreachable_fraction"], "scallop": q["scallop"],
@@ -367,7 +376,8 @@ def _summary(rep: dict, out: str) -> None:
     pr, pa, q = rep["program"], rep["paths"], rep["parameterization"]["quality"]
     lines = [
         f"conformill plan: {rep['mesh']['name']} ({rep['mesh']['faces']} faces), {rep['job']['pattern']}, "
-        f"ball R{rep['job']['tool_radius']:g}, scallop {rep['job']['scallop']:g}, tolerance {rep['job']['tolerance']:g}",
+        f"ball R{rep['job']['tool_radius']:g}, scallop {rep['job']['scallop']:g}, tolerance {rep['job']['tolerance']:g}"
+        + (f", stock {rep['job']['stock']:g}" if rep["job"].get("stock") else ""),
         f"  parameterization  {rep['parameterization']['boundary']}, QC mean {q['qc_mean']:.3f}, flipped {q['flipped_faces']}",
         f"  paths             {pa['planned_paths']} planned, {pa['passes']} feed pass(es), {pa['cl_points']} CL points",
         f"  side step         flat {rep['side_step']['flat_interval_mm']:.3f} mm, realised mean "
@@ -391,7 +401,7 @@ def _summary(rep: dict, out: str) -> None:
         v = rep["verify"]
         s = v.get("scallop", {})
         q = v["reachable"]
-        lines.append(f"  verify            interior: scallop p50 {s['p50']:.4f} / p99.9 {s['p999']:.4f} / max "
+        lines.append(f"  verify            {'on the part offset by the stock: ' if v.get('stock') else ''}interior: scallop p50 {s['p50']:.4f} / p99.9 {s['p999']:.4f} / max "
                      f"{s['max']:.4f} mm, uncut {100 * v['uncut_fraction']:.3f}%, gouge max {v['gouge_max']:.4f} mm")
         lines.append(f"                    reachable ({100 * (1 - q['unreachable_fraction']):.2f}% of it): scallop "
                      f"p99.9 {q['scallop']['p999']:.4f} mm = {q['scallop_over_h']['p999']:.3f} H"

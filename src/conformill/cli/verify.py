@@ -24,6 +24,10 @@ def add_arguments(parser) -> None:
     parser.add_argument("--scallop", type=float, default=None, metavar="H",
                         help="scallop limit, mm: fail when p99.9 > H or any area is uncut")
     parser.add_argument("--gouge", type=float, default=None, metavar="G", help="gouge limit, mm: fail when deeper")
+    parser.add_argument("--stock", type=float, default=0.0, metavar="S",
+                        help="material the program leaves on the part, mm (plan --stock; default 0): every figure "
+                             "is measured from the part offset by S along its normal (the scallop above it, a "
+                             "gouge into the stock); negative: cut into the part, above minus the tool radius")
     parser.add_argument("--samples", type=int, default=200_000, metavar="N", help="surface samples (default 200000)")
     parser.add_argument("--seed", type=int, default=0, help="random seed of the samples (default 0)")
     parser.add_argument("--scale", type=float, default=1.0, metavar="S",
@@ -120,7 +124,9 @@ def table(summary: dict) -> str:
     rc = f"{_fmt(cl)}" + (f" (line {g['rapid_min_line']})" if g["rapid_min_line"] is not None else "")
     out.append(f"rapid clearance min {rc} over {g['n_rapids']} rapids; "
                f"vertical retracts ({g['n_retracts']}): min {_fmt(g['retract_min_clearance'])}")
-    out.append(f"feed moves {g['feed_moves']}, feed length {g['feed_length_mm']:.1f} mm, tool radius {g['tool_radius']:g} mm")
+    out.append(f"feed moves {g['feed_moves']}, feed length {g['feed_length_mm']:.1f} mm, tool radius {g['tool_radius']:g} mm"
+               + (f", stock {g['stock']:g} mm (the figures are measured from the part offset by it)"
+                  if g.get("stock") else ""))
     modes = g.get("path_control")
     if modes:
         out.append(f"path control of the feed moves: {', '.join(modes)} (the controller's corner rounding is not "
@@ -212,6 +218,9 @@ def run(args) -> int:
     _positive("--scallop", args.scallop, allow_zero=True)
     _positive("--gouge", args.gouge, allow_zero=True)
     _positive("--reach-depth", args.reach_depth)
+    if not (math.isfinite(args.stock) and args.stock > -args.tool_radius):
+        raise ConformillError(f"--stock must be a finite number of mm above minus the tool radius "
+                              f"({-args.tool_radius:g}), got {args.stock!r}")
     _positive("--scale", args.scale)
     _positive("--chord-tol", args.chord_tol)
     if args.samples < 1:
@@ -248,7 +257,7 @@ def _check(args) -> int:
     with sample_bar(args.samples, "simulating", enabled=not quiet) as update:
         res = verify(mesh, program, args.tool_radius, n_samples=args.samples, seed=args.seed,
                      scallop=args.scallop, gouge=args.gouge, normals=args.normals, judge=args.judge,
-                     progress=update, rest=args.rest, reach_depth=args.reach_depth)
+                     progress=update, rest=args.rest, reach_depth=args.reach_depth, stock=args.stock)
     summary = dict(res.summary)
     if args.holder_radius is not None:
         from conformill.verify.holder import holder_clearance

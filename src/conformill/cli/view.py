@@ -30,14 +30,20 @@ def add_arguments(parser):
                         help="factor applied to the mesh coordinates, e.g. 1000 for metres (default 1)")
     parser.add_argument("--tool-radius", type=float, default=None, metavar="R",
                         help="ball radius (mm): also show the remaining material left at the mesh vertices")
+    parser.add_argument("--stock", type=float, default=0.0, metavar="S",
+                        help="with --tool-radius: the material the program leaves on the part (plan --stock, mm); "
+                             "the map shows what is left above the part offset by S")
     parser.add_argument("--title", default=None, help="page title (default: the file names)")
 
 
-def vertex_heat(mesh, program, tool_radius: float, gouge_tol: float = 1e-3) -> tuple[np.ndarray, dict]:
+def vertex_heat(mesh, program, tool_radius: float, gouge_tol: float = 1e-3,
+                stock: float = 0.0) -> tuple[np.ndarray, dict]:
     """Remaining material (mm) at the mesh vertices after the program's feed moves.
 
     Casts from each vertex along its (area-weighted) normal against the swept ball (see
-    :func:`conformill.verify.simulate.remaining_material`).
+    :func:`conformill.verify.simulate.remaining_material`); with ``stock``, from the vertex
+    moved that far along its normal (the material above the part's offset, as ``verify``
+    measures it).
 
     Returns
     -------
@@ -51,7 +57,8 @@ def vertex_heat(mesh, program, tool_radius: float, gouge_tol: float = 1e-3) -> t
     from conformill.verify.samples import SurfaceSamples, vertex_normals
     from conformill.verify.simulate import remaining_material
 
-    samples = SurfaceSamples.from_arrays(mesh.V, vertex_normals(mesh.V, mesh.F))
+    N = vertex_normals(mesh.V, mesh.F)
+    samples = SurfaceSamples.from_arrays(mesh.V + float(stock) * N, N)
     rem, gouge, _, _ = remaining_material(samples, program, tool_radius)
     gouged = gouge > gouge_tol
     heat = np.where(gouged, -gouge, np.where(gouge > 0, 0.0, rem))
@@ -66,6 +73,8 @@ def run(args) -> int:
 
     if args.tool_radius is not None and not (math.isfinite(args.tool_radius) and args.tool_radius > 0):
         raise ConformillError(f"--tool-radius must be > 0 mm, got {args.tool_radius!r}")
+    if not math.isfinite(args.stock) or (args.tool_radius is not None and args.stock <= -args.tool_radius):
+        raise ConformillError(f"--stock must be a finite number of mm above minus the tool radius, got {args.stock!r}")
     check_writable(args.output)
     mesh = read_mesh(args.mesh, scale=args.scale)
     info: dict = {"mesh file": Path(args.mesh).name}
@@ -82,9 +91,9 @@ def run(args) -> int:
         info["moves"] = len(program)
         passes, rapids = split_program(program.points, program.motion, program.start)
         if args.tool_radius is not None:
-            info["tool"] = f"ball, R {args.tool_radius:g} mm"
+            info["tool"] = f"ball, R {args.tool_radius:g} mm" + (f", stock {args.stock:g} mm" if args.stock else "")
             if np.any(program.motion != 0):
-                heat, figures = vertex_heat(mesh, program, args.tool_radius)
+                heat, figures = vertex_heat(mesh, program, args.tool_radius, stock=args.stock)
                 info.update(figures)
             else:
                 log.warning("%s has no feed moves: no remaining-material map", args.program)

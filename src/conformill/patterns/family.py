@@ -23,7 +23,7 @@ from scipy.spatial import cKDTree
 
 from conformill.errors import PlanningError
 from conformill.geometry.closest import segment_d2
-from conformill.planning.steps import side_interval
+from conformill.planning.steps import side_interval_stock
 
 log = logging.getLogger(__name__)
 
@@ -441,11 +441,9 @@ class Planner:
             along = np.maximum(S.curvature(t), 0.0)
             rise = np.minimum(self.rise_tol, along * self.max_step ** 2 / 8.0)
             h = h - np.nan_to_num(rise, nan=self.rise_tol)
-        ls, reach = side_interval(h, self.params.tool_radius, kappa)
-        ls = np.asarray(ls, dtype=np.float64)
-        if self.concave_cap is not None:
-            ls = np.minimum(ls, self.concave_cap)
-        return ls, np.asarray(reach, dtype=bool)
+        # with stock, the ball rolls on the offset surface (the cap holds there)
+        ls, reach = side_interval_stock(h, self.params.tool_radius, kappa, self.params.stock, self.concave_cap)
+        return np.asarray(ls, dtype=np.float64), np.asarray(reach, dtype=bool)
 
     def domain_steps(self, c: Curve) -> np.ndarray:
         """Step in ``s`` allowed at each sample: ``l_s |r_t| / (sqrt(EG - F^2) rate)``."""

@@ -11,11 +11,13 @@ from conformill.planning.steps import (
     scallop_height,
     side_interval,
     side_interval_paper,
+    side_interval_stock,
 )
 
 __all__ = [
     "check_params",
     "side_interval",
+    "side_interval_stock",
     "scallop_height",
     "side_interval_paper",
     "forward_step",

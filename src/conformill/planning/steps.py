@@ -75,13 +75,17 @@ def _positive(name: str, value) -> float:
     return x
 
 
-def check_params(tool_radius, scallop, tolerance) -> PathParams:
-    """Validate cutting parameters (ball radius ``r``, scallop ``h``, chord tolerance ``e``).
+def check_params(tool_radius, scallop, tolerance, stock=0.0) -> PathParams:
+    """Validate cutting parameters (ball radius ``r``, scallop ``h``, chord tolerance ``e``,
+    stock ``s`` left on the part).
 
     Parameters
     ----------
     tool_radius, scallop, tolerance : float
         Millimetres.
+    stock : float
+        Millimetres, ``s > -r``: the surface the ball finishes is the part offset by ``s``
+        along its normal (negative: into the part).
 
     Returns
     -------
@@ -91,15 +95,22 @@ def check_params(tool_radius, scallop, tolerance) -> PathParams:
     Raises
     ------
     PlanningError
-        A value is not a finite positive number, or ``scallop >= tool_radius`` (a ball of
-        radius ``r`` cannot leave a cusp of ``r`` or more between touching passes).
+        A value is not a finite positive number, ``scallop >= tool_radius`` (a ball of
+        radius ``r`` cannot leave a cusp of ``r`` or more between touching passes), or the
+        stock is not a finite number above ``-r``.
     """
     r = _positive("tool radius", tool_radius)
     h = _positive("scallop height", scallop)
     e = _positive("chord tolerance", tolerance)
     if h >= r:
         raise PlanningError(f"scallop height {h:g} mm must be smaller than the tool radius {r:g} mm")
-    return PathParams(tool_radius=r, scallop=h, tolerance=e)
+    try:
+        s = float(stock) + 0.0  # -0.0 -> 0.0
+    except (TypeError, ValueError):
+        raise PlanningError(f"stock must be a number (mm), got {stock!r}") from None
+    if isinstance(stock, bool) or not math.isfinite(s) or s <= -r:
+        raise PlanningError(f"stock must be a finite number of mm above minus the tool radius ({-r:g}), got {stock!r}")
+    return PathParams(tool_radius=r, scallop=h, tolerance=e, stock=s)
 
 
 def side_interval(h, r, kappa):
@@ -162,6 +173,57 @@ def _side_interval_one(h, k, r):
     if k < 0 and ak * h * h > 2.0 * (r - h):
         w = 2.0 * r / (1.0 + r * ak)
     return w
+
+
+def side_interval_stock(h, r, kappa, stock: float, cap: float | None = None):
+    """:func:`side_interval` for a ball finishing the part's offset by ``stock``, as a chord
+    between CC points on the part itself.
+
+    With stock ``s`` the ball of radius ``r`` rolls on the surface offset by ``s`` along the
+    normal; its centre is ``r + s`` from the part. Where the part has the signed normal
+    curvature ``kappa`` across the paths (> 0 concave, radius ``1 / |kappa|``), the offset
+    has ``kappa' = kappa / (1 - kappa s)`` (a concave radius shrinks by ``s``, a convex one
+    grows by it). Two CC points of the part and the two on the offset along the same
+    normals subtend the same angle, so the chords scale with the radii:
+    ``l_part = l_offset / (1 - kappa s)``, where ``l_offset`` is :func:`side_interval`
+    ``(h, r, kappa')``, capped at ``cap`` (on the offset, where the ball rolls). Where
+    ``1 - kappa s <= 0`` the offset folds over (a concave radius below ``s``, or with a
+    negative stock a convex radius below ``-s``): unreachable, with the flat interval.
+    ``stock = 0`` gives :func:`side_interval` (and the cap) unchanged.
+
+    Parameters
+    ----------
+    h, r, kappa
+        As for :func:`side_interval`.
+    stock : float
+        Material left on the part, mm (``> -r``).
+    cap : float, optional
+        Upper bound of the chord on the offset (mm).
+
+    Returns
+    -------
+    l_s : ndarray of float64
+        Chord between the CC points of adjacent paths on the part (mm).
+    reachable : ndarray of bool
+        False where the ball cannot follow the offset's concave curvature (``kappa >= 1 /
+        (r + s)``: the ball of radius ``r + s`` cannot follow the part), where the offset
+        folds over, or ``kappa`` is not finite.
+    """
+    k = np.asarray(kappa, dtype=np.float64)
+    s = float(stock)
+    if s == 0.0:
+        ls, reach = side_interval(h, r, k)
+    else:
+        f = 1.0 - k * s
+        good = np.isfinite(f) & (f > 0.0)
+        fs = np.where(good, f, 1.0)
+        ls, reach = side_interval(h, r, np.where(good, k / fs, np.nan))
+        reach &= good
+    if cap is not None:
+        ls = np.minimum(ls, cap)
+    if s != 0.0:
+        ls = np.where(reach, ls / fs, ls)
+    return ls, reach
 
 
 def scallop_height(w, r, kappa):
@@ -390,6 +452,7 @@ def polar_forward_step(l_f, E, F, G, theta, rho):
 
 __all__ = [
     "check_params",
+    "side_interval_stock",
     "side_interval",
     "scallop_height",
     "side_interval_paper",

@@ -34,7 +34,7 @@ from __future__ import annotations
 import math
 import os
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -138,6 +138,23 @@ class Program:
             return prev, self.points.copy()
         keep = self.motion == kind
         return prev[keep], self.points[keep]
+
+    def for_stock(self, tool_radius: float, stock: float) -> tuple["Program", float]:
+        """This program as a ball of radius ``tool_radius + stock`` would run it, and that
+        radius: the same ball centres, with the tips ``stock`` lower.
+
+        A ball of radius ``r`` finishing the part's offset by ``stock`` (material left on
+        the part; negative: cut into it) touches the offset wherever the ball of radius
+        ``r + stock`` about the same centre touches the part: the tests on ball positions
+        (reach, rapid clearance) take this program and radius. The material left above the
+        offset is not that of the larger ball (its cusps are rounder by the stock); it is
+        measured on the offset itself (:func:`conformill.verify.simulate.verify`).
+        """
+        s = float(stock)
+        if s == 0.0:
+            return self, float(tool_radius)
+        lower = np.array([0.0, 0.0, s])
+        return replace(self, points=self.points - lower, start=self.start - lower), float(tool_radius) + s
 
     def feed_length(self) -> float:
         """Total length (mm) of the feed moves."""

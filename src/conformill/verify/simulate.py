@@ -41,7 +41,7 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numba as nb
 import numpy as np
@@ -939,7 +939,7 @@ def verify(mesh, program: Program, tool_radius: float, n_samples: int = 200_000,
            scallop: float | None = None, gouge: float | None = None, normals: str = "vertex",
            ray_cap: float | None = None, clearance_cap: float = 5.0, gouge_tol: float = 1e-3,
            samples: SurfaceSamples | None = None, progress=None, judge: str = "interior",
-           reach_depth: float | None = None, rest: bool = False) -> VerifyResult:
+           reach_depth: float | None = None, rest: bool = False, stock: float = 0.0) -> VerifyResult:
     """Simulate ``program`` with a ball of radius ``tool_radius`` on ``mesh`` and measure it.
 
     Parameters
@@ -994,6 +994,14 @@ def verify(mesh, program: Program, tool_radius: float, n_samples: int = 200_000,
         samples are left above ``scallop`` (``above_limit``), and how many of those have
         a rest below ``scallop / 2``, up to ``0.9 scallop`` and above that
         (``above_limit_by_rest``). The pass/fail check does not change.
+    stock : float
+        Material the program was meant to leave on the part (mm; negative: cut into it,
+        above ``-tool_radius``): every figure is then measured from the part's offset by
+        ``stock``. The remaining material and the gouge are cast from the samples moved
+        ``stock`` along their normals (on the offset), against the ball of radius
+        ``tool_radius``; the reach tests and the rapid clearance take the ball of radius
+        ``tool_radius + stock`` about the same centres on the part
+        (:meth:`Program.for_stock`).
 
     Returns
     -------
@@ -1010,9 +1018,15 @@ def verify(mesh, program: Program, tool_radius: float, n_samples: int = 200_000,
     ConformillError
         Bad radius, sample count or mesh; a program with no feed moves.
     """
-    r = float(tool_radius)
-    if not (math.isfinite(r) and r > 0):
+    r0 = float(tool_radius)
+    if not (math.isfinite(r0) and r0 > 0):
         raise ConformillError(f"tool radius must be > 0 mm, got {tool_radius!r}")
+    if isinstance(stock, bool) or not (math.isfinite(float(stock)) and float(stock) > -r0):
+        raise ConformillError(f"stock must be a finite number of mm above minus the tool radius ({-r0:g}), "
+                              f"got {stock!r}")
+    stock = float(stock) + 0.0  # -0.0 -> 0.0
+    cut_program = program  # the ball of radius r0 as written: what the material is measured against
+    program, r = program.for_stock(r0, stock)  # the ball of radius r0 + stock about the same centres
     if judge not in ("interior", "reachable"):
         raise ConformillError(f"judge must be 'interior' or 'reachable', got {judge!r}")
     for nm, v in (("scallop", scallop), ("gouge", gouge)):
@@ -1025,7 +1039,8 @@ def verify(mesh, program: Program, tool_radius: float, n_samples: int = 200_000,
     if samples is None:
         samples = sample_surface(V, F, n_samples, seed=seed, normals=normals, boundary_spacing=min(0.1, r / 20),
                                  boundary_max=2 * r)
-    rem, g, hit, gj = remaining_material(samples, program, r, ray_cap=ray_cap, progress=progress)
+    on_offset = samples if stock == 0.0 else replace(samples, points=samples.points + stock * samples.normals)
+    rem, g, hit, gj = remaining_material(on_offset, cut_program, r0, ray_cap=ray_cap, progress=progress)
     feed_lines = program.line[program.motion == FEED]
     hit_line = np.where(hit >= 0, feed_lines[np.maximum(hit, 0)], -1)
     gouge_line = np.where(gj >= 0, feed_lines[np.maximum(gj, 0)], -1)
@@ -1061,7 +1076,8 @@ def verify(mesh, program: Program, tool_radius: float, n_samples: int = 200_000,
     if rest and scallop is not None:
         s_reach["rest"] = _rest_figures(rem, rest_t, ok, scallop)
     summary = {
-        "tool_radius": r,
+        "tool_radius": r0,
+        "stock": stock,
         "samples": len(samples),
         "interior_samples": int(interior.sum()),
         "seed": int(seed),

@@ -15,6 +15,7 @@ from pathlib import Path
 
 from conformill.cli.progress import sample_bar
 from conformill.errors import ConformillError
+from conformill.planning.steps import check_stock
 
 
 def add_arguments(parser) -> None:
@@ -218,9 +219,7 @@ def run(args) -> int:
     _positive("--scallop", args.scallop, allow_zero=True)
     _positive("--gouge", args.gouge, allow_zero=True)
     _positive("--reach-depth", args.reach_depth)
-    if not (math.isfinite(args.stock) and args.stock > -args.tool_radius):
-        raise ConformillError(f"--stock must be a finite number of mm above minus the tool radius "
-                              f"({-args.tool_radius:g}), got {args.stock!r}")
+    check_stock(args.stock, args.tool_radius, ConformillError, "--stock")
     _positive("--scale", args.scale)
     _positive("--chord-tol", args.chord_tol)
     if args.samples < 1:

@@ -104,13 +104,47 @@ def check_params(tool_radius, scallop, tolerance, stock=0.0) -> PathParams:
     e = _positive("chord tolerance", tolerance)
     if h >= r:
         raise PlanningError(f"scallop height {h:g} mm must be smaller than the tool radius {r:g} mm")
+    s = check_stock(stock, r)
+    return PathParams(tool_radius=r, scallop=h, tolerance=e, stock=s)
+
+
+def check_stock(stock, tool_radius: float | None, error: type[Exception] = PlanningError,
+                name: str = "stock") -> float:
+    """The stock to leave as a float, checked: a finite number of mm above ``-tool_radius``.
+
+    The one check behind ``plan --stock`` (a :class:`PlanningError`, exit 3), ``verify`` and
+    ``view --stock`` (a :class:`~conformill.errors.ConformillError`, exit 2) and
+    :func:`conformill.verify.simulate.verify`.
+
+    Parameters
+    ----------
+    stock : float
+        Material left on the part (mm); negative cuts into it (an electrode's gap).
+    tool_radius : float or None
+        Ball radius (mm); None checks only that the stock is a finite number.
+    error : type of Exception
+        What to raise.
+    name : str
+        How the message names the value (``"--stock"`` for an option).
+
+    Returns
+    -------
+    float
+        The stock, with ``-0.0`` made ``0.0``.
+
+    Raises
+    ------
+    error
+        Not a number, not finite, a bool, or not above ``-tool_radius``.
+    """
     try:
         s = float(stock) + 0.0  # -0.0 -> 0.0
     except (TypeError, ValueError):
-        raise PlanningError(f"stock must be a number (mm), got {stock!r}") from None
-    if isinstance(stock, bool) or not math.isfinite(s) or s <= -r:
-        raise PlanningError(f"stock must be a finite number of mm above minus the tool radius ({-r:g}), got {stock!r}")
-    return PathParams(tool_radius=r, scallop=h, tolerance=e, stock=s)
+        raise error(f"{name} must be a number (mm), got {stock!r}") from None
+    if isinstance(stock, bool) or not math.isfinite(s) or (tool_radius is not None and s <= -tool_radius):
+        bound = "" if tool_radius is None else f" above minus the tool radius ({-tool_radius:g})"
+        raise error(f"{name} must be a finite number of mm{bound}, got {stock!r}")
+    return s
 
 
 def side_interval(h, r, kappa):
@@ -453,6 +487,7 @@ def polar_forward_step(l_f, E, F, G, theta, rho):
 __all__ = [
     "check_params",
     "side_interval_stock",
+    "check_stock",
     "side_interval",
     "scallop_height",
     "side_interval_paper",

@@ -49,6 +49,7 @@ from scipy.spatial import cKDTree
 
 from conformill.errors import ConformillError, GCodeError
 from conformill.geometry.closest import closest_on_triangle
+from conformill.planning.steps import check_stock
 from conformill.verify.gcode import FEED, RAPID, Program
 from conformill.verify.samples import SurfaceSamples, sample_surface
 
@@ -1021,10 +1022,7 @@ def verify(mesh, program: Program, tool_radius: float, n_samples: int = 200_000,
     r0 = float(tool_radius)
     if not (math.isfinite(r0) and r0 > 0):
         raise ConformillError(f"tool radius must be > 0 mm, got {tool_radius!r}")
-    if isinstance(stock, bool) or not (math.isfinite(float(stock)) and float(stock) > -r0):
-        raise ConformillError(f"stock must be a finite number of mm above minus the tool radius ({-r0:g}), "
-                              f"got {stock!r}")
-    stock = float(stock) + 0.0  # -0.0 -> 0.0
+    stock = check_stock(stock, r0, ConformillError)
     cut_program = program  # the ball of radius r0 as written: what the material is measured against
     program, r = program.for_stock(r0, stock)  # the ball of radius r0 + stock about the same centres
     if judge not in ("interior", "reachable"):

@@ -27,6 +27,12 @@ log = logging.getLogger(__name__)
 
 PATTERNS = ("zigzag", "contour", "spiral")
 
+#: The settings for a scanned part (``plan --scan``): the fold pencil cut where the
+#: pattern's passes left more than 0.5 H, and hops over the runs lifted more than 3 mm.
+#: On igea zigzag (r = 4, h = e = 0.01) it left 1.039 h at 22.8-24.0x OpenCAMLib's raster
+#: (session 35; docs/issue5.md and the README's "Issue 5: scale and the raster").
+SCAN_RECIPE = {"pencil": True, "pencil_search": "folds", "pencil_left": 0.5, "hop_lift": 3.0}
+
 
 @dataclass(frozen=True)
 class Job:
@@ -84,7 +90,7 @@ class Job:
         length where that is below a third of the flat step; on igea it is not). On a scan
         the planner then spaces the paths for sharper curvature at facet creases
         and rims (igea contour, h = 0.01: reachable p99.9 1.256 h -> 1.086 h for 1.38x the
-        feed; see README). The midpoints lie on chords, so on a smooth tessellated surface
+        feed; docs/issue5.md, "What 1.05 H costs on a scan"). The midpoints lie on chords, so on a smooth tessellated surface
         the fit reads twice the curvature at the input's vertices and 0.7x at the midpoints
         (measured on a sphere): with the min rule the paths come out denser than needed, and
         the reachability report flags concave regions of radius up to about 2 r. The cutter
@@ -96,7 +102,7 @@ class Job:
         samples whose least possible material lies in (0.15 h, h], chained, settled and
         refined. On igea (contour, h = 0.01) it takes the reachable p99.9 from 1.256 h to
         1.018 h for 9 % more feed, and six of the eight scans measured within 1.05 h for
-        2-20 % (see README, "Pencil passes"), at a cost growing with the area and
+        2-20 % (see docs/issue5.md, "Pencil passes"), at a cost growing with the area and
         ``pencil_density`` (3.7 s more on igea contour at 30 per mm^2 on a 2-CPU AMD EPYC
         host, session 24, its search running beside the pattern stage; 7-8 s on session
         21's Intel Xeon host).
@@ -110,13 +116,13 @@ class Job:
         steep walls searched one by one): on the scans the latter's stage took 18-51 %
         less time (igea 2.1 against 3.7 s more than the default since session 24) and
         left the same or a lower scallop on seven of eight, for 1-15 points more feed
-        (README, "Pencil passes", sessions 23-24).
+        (docs/issue5.md, "Pencil passes", sessions 23-24).
     pencil_left : float or None
         With the fold search: cut the pencil only through the fold points where the
         pattern's passes leave more than this many ``h`` in the fold's shadow, by the
         planner's estimate (:func:`conformill.pencil.where_left`,
         :mod:`conformill.pattern_rest`); the steep walls' centres are all kept. None
-        (default): every fold point. Session 31 measured 0.5 on the scans (README,
+        (default): every fold point. Session 31 measured 0.5 on the scans (docs/issue5.md,
         "Pencil passes").
     hop_lift : float
         Hop over the runs of a path whose CC points the drop-cutter lifts more than this
@@ -125,7 +131,7 @@ class Job:
         (:meth:`conformill.passes.PassBuilder._cut_centres`); 0 (default): off. On igea
         (h = 0.01) 3 mm gave 12-16 % less machining time and about 20 % less feed, the
         reachable p99.9 up by 0.03-0.06 h, or by 0.003-0.007 h with the fold pencil
-        (README, "Hops over lifted runs", session 27).
+        (docs/issue5.md, "Hops over lifted runs", session 27).
     rapid : float
         The machine's rapid rate (mm/min) the hops are timed at.
     blend : float, "off" or None

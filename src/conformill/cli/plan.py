@@ -66,13 +66,17 @@ def add_arguments(p) -> None:
                         "the steep walls' centres are all kept): at 0.5, 0-7 %% less feed on the eleven meshes "
                         "measured, the verified scallop within 0.005 H but on one relief (+0.013 H, failing either "
                         "way). Default: every fold point")
-    p.add_argument("--hop-lifted", type=float, default=0.0, metavar="L",
+    p.add_argument("--scan", action="store_true",
+                   help="settings for a scanned part: --pencil --pencil-search folds --pencil-left 0.5 "
+                        "--hop-lifted 3, each unless given (igea zigzag, R4, H 0.01: 1.039 H at 23x "
+                        "OpenCAMLib's raster, against 1.408 H by default)")
+    p.add_argument("--hop-lifted", type=float, default=None, metavar="L",
                    help="hop over runs of the path where the drop-cutter lifts the ball more than L mm above "
                         "its planned contact (undercuts, pockets tighter than the ball) where the hop is quicker "
                         "than riding the run: a rapid up to 1 mm clear of the part (never above the safe height), "
                         "across, and a plunge. A shorter program (igea, L = 3: 12-16 %% less time at the feeds, "
                         "rapids not counted) and a slightly quicker plan, a little more material at the rims of "
-                        "those regions (0: off, default; see README)")
+                        "those regions (0: off, default; docs/issue5.md, \"Hops over lifted runs\")")
     p.add_argument("--rapid", type=float, default=5000.0, metavar="F",
                    help="the machine's rapid rate, mm/min, for deciding hops (5000)")
     p.add_argument("--blend", type=_blend, default=None, metavar="P|off",
@@ -137,6 +141,23 @@ def _corners(text):
     return c
 
 
+def _scan_defaults(args) -> None:
+    """Fill the options ``--scan`` sets (:data:`conformill.pipeline.SCAN_RECIPE`) where the
+    command line left them unset; ``--hop-lifted`` unset and no ``--scan`` is 0 (off)."""
+    from conformill.pipeline import SCAN_RECIPE
+
+    if args.scan:
+        args.pencil = True
+        if args.pencil_search is None:
+            args.pencil_search = SCAN_RECIPE["pencil_search"]
+        if args.pencil_left is None and args.pencil_search == "folds":
+            args.pencil_left = SCAN_RECIPE["pencil_left"]
+        if args.hop_lifted is None:
+            args.hop_lifted = SCAN_RECIPE["hop_lift"]
+    if args.hop_lifted is None:
+        args.hop_lifted = 0.0
+
+
 def run(args) -> int:
     from conformill.output.atomic import check_writable
     from conformill.pipeline import Job
@@ -148,6 +169,7 @@ def run(args) -> int:
         import numba
 
         numba.set_num_threads(min(args.threads, numba.config.NUMBA_NUM_THREADS))
+    _scan_defaults(args)
     job = Job(pattern=args.pattern, tool_radius=args.tool_radius, scallop=args.scallop, tolerance=args.tolerance,
               feed=args.feed, plunge_feed=args.plunge_feed, safe_z=args.safe_z, orient=args.orient,
               weights=args.weights, corners=_corners(args.corners), max_step=args.max_step, spindle=args.spindle,

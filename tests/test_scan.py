@@ -1,0 +1,63 @@
+"""``plan --scan``: the scan recipe (:data:`conformill.pipeline.SCAN_RECIPE`) as one option."""
+
+from __future__ import annotations
+
+import pytest
+
+from conformill.cli.main import main
+from conformill.pipeline import SCAN_RECIPE
+
+COMMON = ["plan", "sample:patch", "--tool-radius", "4", "--scallop", "0.1", "-q", "--pattern", "contour"]
+
+
+def _header(path):
+    return [ln for ln in path.read_text().splitlines() if ln.startswith("(param")]
+
+
+def test_recipe_is_what_the_help_says():
+    assert SCAN_RECIPE == {"pencil": True, "pencil_search": "folds", "pencil_left": 0.5, "hop_lift": 3.0}
+
+
+def test_scan_writes_the_same_bytes_as_its_four_options(tmp_path):
+    a, b = tmp_path / "scan.nc", tmp_path / "explicit.nc"
+    assert main(COMMON + ["--scan", "-o", str(a)]) == 0
+    assert main(COMMON + ["--pencil", "--pencil-search", "folds", "--pencil-left", "0.5", "--hop-lifted", "3",
+                          "-o", str(b)]) == 0
+    assert a.read_bytes() == b.read_bytes()
+    head = _header(a)
+    assert "(param pencil: folds, grid points per mm2 30, where the pattern leaves above 0.5 H)" in head
+    assert "(param hop lifted: runs lifted more than 3 mm, rapid 5000)" in head
+
+
+def test_given_options_win_over_the_recipe(tmp_path):
+    out = tmp_path / "p.nc"
+    assert main(COMMON + ["--scan", "--pencil-left", "0.8", "--hop-lifted", "0", "--pencil-density", "20",
+                          "-o", str(out)]) == 0
+    head = "\n".join(_header(out))
+    assert "(param pencil: folds, grid points per mm2 20, where the pattern leaves above 0.8 H)" in head
+    assert "hop" not in head
+
+
+def test_scan_with_the_sample_search_keeps_every_centre(tmp_path):
+    # --pencil-left needs the fold search: the recipe does not add it to the other search
+    out = tmp_path / "p.nc"
+    assert main(COMMON + ["--scan", "--pencil-search", "samples", "-o", str(out)]) == 0
+    head = "\n".join(_header(out))
+    assert "(param pencil: samples per mm2 30)" in head
+    assert "(param hop lifted: runs lifted more than 3 mm" in head
+
+
+def test_without_scan_nothing_changes(tmp_path):
+    out = tmp_path / "p.nc"
+    assert main(COMMON + ["-o", str(out)]) == 0
+    head = "\n".join(_header(out))
+    assert "pencil" not in head and "hop" not in head
+
+
+@pytest.mark.parametrize("extra", [["--pencil-left", "-1"], ["--hop-lifted", "nan"]])
+def test_bad_values_beside_scan_exit_3_without_output(tmp_path, capsys, extra):
+    out = tmp_path / "p.nc"
+    assert main(COMMON + ["--scan", *extra, "-o", str(out)]) == 3
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and ("pencil-left" in err or "hop-lifted" in err)
+    assert not out.exists()

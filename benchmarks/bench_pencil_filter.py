@@ -27,7 +27,7 @@ design): on igea zigzag both give 161.3 m at 1.036-1.038 h for fold points above
         [--thresholds all 0.5 0.5,0 0.3]
 
 Session 30 (igea zigzag, density 30, no hops): ``all`` 171.5 m, 1.036 h; fold points above
-0.5 h only 161.3 m, 1.036 h; both at 0.5 h 158.4 m, 1.042 h (README, "What stands in the way").
+0.5 h only 161.3 m, 1.036 h; both at 0.5 h 158.4 m, 1.042 h (docs/issue5.md, "What stands in the way").
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 
 Issue 5 asks, on the 50k-150k-face meshes, for conformill at least 20x faster than
 OpenCAMLib's raster *and* a verified scallop within 1.05 h. On the igea scan the default
-plan is about 20x but leaves 1.26 h at p99.9 (README, "Against an OpenCAMLib raster"). This
+plan is about 20x but leaves 1.26 h at p99.9 (docs/issue5.md, "Against an OpenCAMLib raster"). This
 script measures, on one mesh and one pattern, how the verified scallop moves with the feed
 length and the time for the knobs that densify the program:
 

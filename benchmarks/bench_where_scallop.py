@@ -1,7 +1,7 @@
 """Where the verified scallop exceeds the limit, and why: rest material against spacing.
 
 On the igea scan the default contour program leaves a reachable p99.9 of about 1.26 h
-(README, "What 1.05 H costs on a scan"). This script plans one mesh and pattern, verifies
+(docs/issue5.md, "What 1.05 H costs on a scan"). This script plans one mesh and pattern, verifies
 the program as ``bench_raster.py`` does (400k samples, seed 0, limit 1.05 h, reach depth h,
 the reachable judge) and then looks at the reachable samples left above 1.05 h ("over")
 against a random control set of reachable samples:

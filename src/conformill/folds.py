@@ -37,7 +37,7 @@ On igea (155k faces, r = 4 mm, 0.18 mm grid) the search takes about 1.3 s on two
 (2.4 s of CPU: grid 0.5 s, crossings 0.6 s, shadows 0.2 s of wall), 0.31 of the CPU of
 the per-sample search of :func:`conformill.pencil.best_centres` on the same host, and 93 %
 of that search's band centres lie within 0.1 mm of a fold point whose shadow is deeper
-than 0.15 h (``benchmarks/bench_pencil.py --folds``; README, "Pencil passes", session 23).
+than 0.15 h (``benchmarks/bench_pencil.py --folds``; docs/issue5.md, "Pencil passes", session 23).
 Where the part is steeper than about 78 deg the grid crosses the folds too rarely (a fold
 running down a wall projects to a short XY segment): :func:`conformill.pencil.pencil_passes`
 searches the samples there one by one.

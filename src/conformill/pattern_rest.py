@@ -13,7 +13,7 @@ fold point (:mod:`conformill.folds`): where the pattern already cut the shadow d
 into the swept volume instead, independent of the planner by design; on igea (zigzag, r =
 4, h = 0.01, fold points at 30 per mm^2) this bound and verify's cast towards the wedged
 centre agreed to a median ratio of 0.999 (5-95 %: 0.966-1.018), and at a depth of 0.5 h
-they disagreed on 113 of 28.6k points (session 30, README "What stands in the way").
+they disagreed on 113 of 28.6k points (session 30, docs/issue5.md "What stands in the way").
 
 The moves are binned on an XY grid of 0.5 mm cells, each move in the cells it passes over
 (walked in pieces a cell long), and each cell keeps its moves' range of centre heights. A

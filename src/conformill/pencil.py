@@ -18,7 +18,7 @@ searched one by one as below, and their band centres join the fold points. Again
 per-sample search on the eight scans measured, this left a lower verified scallop on
 five, the same on two and a higher one on the lion relief (which fails either way), in
 18-51 % less time, but for 1-15 points more feed (+16 % against +10 % on igea: twelve
-minutes of machine time for 0.9 s of planning), so it is not the default (README,
+minutes of machine time for 0.9 s of planning), so it is not the default (docs/issue5.md,
 "Pencil passes", session 23). The default, ``search="samples"`` (sessions 21-22), finds
 the places from the rest itself, sample by sample, everywhere. For area-uniform samples
 of the part it
@@ -37,7 +37,7 @@ dropped). The best centre of the model is searched on grids of 7 x 7 centres ove
 +-r/320 and +-r/1280 (the shape of :func:`conformill.verify.rest.rest_material`'s search with
 one start, on smaller grids: that one starts from 25 x 25 centres over +-0.4 r and refines on
 9 x 9; 5 x 5 on the last three levels costs 12-19 % less CPU than 7 x 7 on igea and left the
-same scallop, session 22, README "Pencil passes"). One
+same scallop, session 22, docs/issue5.md "Pencil passes"). One
 true drop at the model's best centre, with the model's height as floor, tells whether a
 triangle of the part rises above the model there; if so it joins the working set and the
 model is searched again (from the best centre, without the coarse grid), else the centre
@@ -50,7 +50,7 @@ or two rounds; with 1M samples the stage found 60331 centres with a rest in (0.1
 against the 60679 of session 12's search with true drops (9 x 9 grids, about 405 drops
 per sample), and the passes through them leave the same 1.024 h, for about 1/30 of that
 search's time (10.5 s against 287-367 s; session 21, measured with this search as a
-prototype before it moved here; README "Pencil passes").
+prototype before it moved here; docs/issue5.md "Pencil passes").
 
 The stage is two steps: :func:`pencil_chains` (the search, :func:`pencil_search`, then
 the chains and their settling, :func:`chains_of`: it needs only the part and the ball, so
@@ -64,7 +64,7 @@ quarter, half or three quarters of the way between the contacts; :func:`where_le
 distance bound of :mod:`conformill.pattern_rest`): elsewhere the pattern already cut most
 of what the wedged ball would. The worker then runs only the search, and the chains are made
 once the pattern's passes are known. At ``F = 0.5`` on igea zigzag it cut 6 % of the feed
-(171.5 to 161.3 m) for the same verified scallop (1.036 / 1.038 h; README, "Pencil passes").
+(171.5 to 161.3 m) for the same verified scallop (1.036 / 1.038 h; docs/issue5.md, "Pencil passes").
 
 The samples are drawn per unit area (``density``), with vertex normals interpolated (as
 ``verify`` judges). The passes need them dense: each centre found is a point of a pass,

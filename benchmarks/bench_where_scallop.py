@@ -22,7 +22,7 @@ far apart for the surface the planner sees; the material comes from features bel
 fit's scale (``rest``).
 
     python benchmarks/bench_where_scallop.py [MESH] [--pattern contour] [--fit mesh|split]
-        [--settle 0.5] [--planned 1.0] [--samples 400000] [--control 3000]
+        [--settle 0.5] [--planned 1.0] [--samples 400000] [--control 3000] [--scan]
 """
 
 from __future__ import annotations
@@ -83,20 +83,21 @@ def main(argv=None) -> int:
     ap.add_argument("--settle", type=float, default=0.5)
     ap.add_argument("--planned", type=float, default=1.0, help="paths spaced for this factor times h")
     ap.add_argument("--control", type=int, default=3000)
+    ap.add_argument("--scan", action="store_true", help="plan with the scan recipe (plan --scan)")
     args = ap.parse_args(argv)
     from conformill.cutter import BallCutter
     from conformill.geometry.differential import surface_frame
     from conformill.mesh.split import split_midpoints
-    from conformill.pipeline import Job, plan
+    from conformill.pipeline import SCAN_RECIPE, Job, plan
     from conformill.planning.steps import scallop_height
     from conformill.verify.rest import rest_material
 
     h, r, e = args.h, args.r, args.e
     mesh, samples = _common.scan_study(args)
     job = Job(pattern=args.pattern, tool_radius=r, scallop=args.planned * h, tolerance=e, settle=args.settle,
-              fit=args.fit)
+              fit=args.fit, **(SCAN_RECIPE if args.scan else {}))
     print(f"{mesh.name}: {mesh.n_faces} faces; {args.pattern}, r = {r:g}, h = {h:g}, e = {e:g}, fit {args.fit}, "
-          f"settle {args.settle:g}, planned {args.planned:g} h", flush=True)
+          f"settle {args.settle:g}, planned {args.planned:g} h{', scan recipe' if args.scan else ''}", flush=True)
     t0 = time.perf_counter()
     res = plan(mesh, job)
     prog = _common.program_of(res)

@@ -13,6 +13,9 @@ against a random control set of reachable samples:
   another path on the sample's other side (the side interval the planner realised there,
   measured point to point: an upper bound, loose where the CC points lie far apart along
   the paths, e.g. on flat ground);
+* ``lift``: how far the drop-cutter lifts the ball placed at the nearest CC point (r along
+  the interpolated normal): on a faceted scan the facets hold it above the contact the
+  spacing assumed, and the cusp rises by about as much (session 35);
 * ``model``: the cusp height the planner's own model gives for that gap
   (:func:`conformill.planning.steps.scallop_height` with the normal curvature of the
   planner's quadratic fit at the sample, across the gap; an upper bound as the gap is).
@@ -60,6 +63,23 @@ def _curvature_along(f, t3):
     Jt = np.transpose(J, (0, 2, 1))
     d = np.linalg.solve(Jt @ J + 1e-12 * np.eye(2), (Jt @ t3[:, :, None]))[:, :, 0]
     return normal_curvature(f.E, f.F, f.G, f.L, f.M, f.N, d[:, 0], d[:, 1])
+
+
+def _lift(cutter, V, F, X):
+    """How far the drop lifts the ball placed at ``X`` (CC points on the mesh), r along the
+    vertex normals interpolated there (as the cutter places it): ``drop - (X + r n)_z``, mm."""
+    import igl
+
+    from conformill.geometry.differential import interpolate, vertex_normals
+
+    _, face, C = igl.point_mesh_squared_distance(np.ascontiguousarray(X), np.ascontiguousarray(V),
+                                                 np.ascontiguousarray(F, dtype=np.int64))
+    a, b, c = (V[F[face, k]] for k in range(3))
+    bary = np.asarray(igl.barycentric_coordinates(np.ascontiguousarray(C), np.ascontiguousarray(a),
+                                                  np.ascontiguousarray(b), np.ascontiguousarray(c)))
+    n = interpolate(vertex_normals(V, F), F, face, bary)
+    centre = X + cutter.radius * n / np.linalg.norm(n, axis=1, keepdims=True)
+    return cutter.drop(centre[:, :2]) - centre[:, 2]
 
 
 def _gaps(P, cc_paths, k: int = 64):
@@ -126,19 +146,20 @@ def main(argv=None) -> int:
         gap = np.linalg.norm(B - A, axis=1)
         kap = _curvature_along(_frame_at(fV, fF, fr, P[S]), np.nan_to_num(B - A))
         model = np.where(has, scallop_height(np.nan_to_num(gap), r, kap), np.nan)
-        rows.append((name, S.size, rem[S] / h, rest / h, (rem[S] - rest) / h, gap, model / h))
+        lift = _lift(cutter, mesh.V, mesh.F, A)
+        rows.append((name, S.size, rem[S] / h, rest / h, (rem[S] - rest) / h, gap, model / h, lift / h))
     print()
     print("| samples | n | remaining / h | rest / h | own (remaining - rest) / h | gap mm | model cusp / h | "
-          "rest > 0.5 h |")
-    print("|---|---|---|---|---|---|---|---|")
+          "lift at nearer CC / h | rest > 0.5 h |")
+    print("|---|---|---|---|---|---|---|---|---|")
 
     def q(x):
         if not np.isfinite(x).any():
             return "-"
         a, b, c = np.nanpercentile(x, [10, 50, 90])
         return f"{a:.2f} / {b:.2f} / {c:.2f}"
-    for name, n, rm, rs, own, gap, model in rows:
-        print(f"| {name} | {n} | {q(rm)} | {q(rs)} | {q(own)} | {q(gap)} | {q(model)} | "
+    for name, n, rm, rs, own, gap, model, lift in rows:
+        print(f"| {name} | {n} | {q(rm)} | {q(rs)} | {q(own)} | {q(gap)} | {q(model)} | {q(lift)} | "
               f"{100 * np.mean(rs > 0.5) if n else 0.0:.1f} % |")
     print("\n(each cell: 10th / 50th / 90th percentile)")
     return 0

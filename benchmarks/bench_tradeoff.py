@@ -21,6 +21,8 @@ length and the time for the knobs that densify the program:
   session 27): the runs lifted more than L mm are hopped over where that is quicker;
 * ``..., left 0.5``: the same fold pencil cut only through the fold points where the
   pattern's passes left more than 0.5 h (``Job.pencil_left``, ``--pencil-left``; session 31);
+* ``scan`` (``, planned F h``): ``plan --scan`` (:data:`conformill.pipeline.SCAN_RECIPE`,
+  session 35), with the paths spaced for ``F h``;
 * ``fine``: the same job on the same surface split once more (every triangle into four at its
   edge midpoints, :func:`conformill.mesh.split.split_midpoints`; a planar split, so the surface and the
   drop-cutter's heights are the same): the per-vertex quadratic fit then works at half the
@@ -85,6 +87,11 @@ for _L in (1.0, 3.0, 6.0):
     VARIANTS[f"hop {_L:g}, pencil folds"] = ({"hop_lift": _L, "pencil": True, "pencil_search": "folds"}, 1.0, False)
     VARIANTS[f"hop {_L:g}, pencil folds, density 20"] = ({"hop_lift": _L, "pencil": True, "pencil_search": "folds",
                                                          "pencil_density": 20.0}, 1.0, False)
+# session 35: plan --scan (pipeline.SCAN_RECIPE), and with the paths planned for less than h
+from conformill.pipeline import SCAN_RECIPE  # noqa: E402
+
+for _f in (1.0, 0.9, 0.8):
+    VARIANTS["scan" if _f == 1.0 else f"scan, planned {_f:g} h"] = (dict(SCAN_RECIPE), _f, False)
 # session 31: the fold pencil only where the pattern left more than 0.5 h (Job.pencil_left)
 for _name in [n for n in VARIANTS if "pencil folds" in n and "settle" not in n]:
     VARIANTS[f"{_name}, left 0.5"] = ({**VARIANTS[_name][0], "pencil_left": 0.5}, *VARIANTS[_name][1:])

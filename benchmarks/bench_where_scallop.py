@@ -20,6 +20,10 @@ against a random control set of reachable samples:
   (:func:`conformill.planning.steps.scallop_height` with the normal curvature of the
   planner's quadratic fit at the sample, across the gap; an upper bound as the gap is).
 
+With ``--scan`` the ``gap``, ``model`` and ``lift`` columns read the pattern's CC points only
+(``PlanResult.cc_paths``): not the pencil's passes, and still the runs the program hops
+over (a hopped point's lift is above 3 mm, hundreds of h: it shows in a high percentile).
+
 If ``model`` is far below the limit where the samples are over it, the paths are not too
 far apart for the surface the planner sees; the material comes from features below the
 fit's scale (``rest``).

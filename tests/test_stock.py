@@ -189,3 +189,32 @@ def test_cli_bad_stock(tmp_path, capsys):
     assert "--stock" in capsys.readouterr().err
     assert main(["view", part, str(prog), "--tool-radius", "4", "--stock", "-9", "-o", str(tmp_path / "v.html")]) == 2
     assert not (tmp_path / "v.html").exists()
+
+
+# -- the one stock check ----------------------------------------------------------------
+def test_check_stock_values_and_messages():
+    from conformill.errors import ConformillError, PlanningError
+    from conformill.planning.steps import check_stock
+
+    assert check_stock(0.3, 4.0) == 0.3
+    z = check_stock(-0.0, 4.0)
+    assert z == 0.0 and math.copysign(1.0, z) == 1.0  # -0.0 written as 0.0
+    assert check_stock(-9.0, None) == -9.0  # no radius: only finite
+    with pytest.raises(PlanningError, match=r"stock must be a finite number of mm above minus the tool radius \(-4\)"):
+        check_stock(-4.0, 4.0)
+    for bad in (float("nan"), float("inf"), True):
+        with pytest.raises(ConformillError, match=r"^--stock must be a finite number of mm"):
+            check_stock(bad, 4.0, ConformillError, "--stock")
+    with pytest.raises(ConformillError, match=r"^--stock must be a finite number of mm, got nan$"):
+        check_stock(float("nan"), None, ConformillError, "--stock")
+    with pytest.raises(ConformillError, match=r"must be a number \(mm\), got 'x'"):
+        check_stock("x", 4.0, ConformillError)
+
+
+def test_simulate_verify_rejects_a_stock_that_is_not_a_number():
+    from conformill.errors import ConformillError
+
+    part = synthetic.plane(size=20, spacing=2.0)
+    prog = read_gcode("G21 G90\nG0 Z10\nG1 X1 Y1 Z0 F100\nG1 X5 Y1 Z0\nM30\n")
+    with pytest.raises(ConformillError, match="stock must be a number"):
+        verify(part, prog, 4.0, n_samples=100, stock="x")

@@ -57,7 +57,7 @@ def add_arguments(p) -> None:
                         "passes are searched from (30)")
     p.add_argument("--pencil-search", choices=["folds", "samples"], default=None,
                    help="how the pencil stage finds the wedged balls: the best ball of each surface sample "
-                        "(samples, default), or the folds of the drop surface crossing an XY grid (folds: on the "
+                        "(samples, default; folds with --scan), or the folds of the drop surface crossing an XY grid (folds: on the "
                         "scans measured an 18-51 %% quicker stage and the same or a lower scallop, for 1-15 points "
                         "more feed)")
     p.add_argument("--pencil-left", type=float, default=None, metavar="F",
@@ -65,19 +65,20 @@ def add_arguments(p) -> None:
                         "pattern's passes leave more than F H in the fold's shadow (estimated from the passes; "
                         "the steep walls' centres are all kept): at 0.5, 0-7 %% less feed on the eleven meshes "
                         "measured, the verified scallop within 0.005 H but on one relief (+0.013 H, failing either "
-                        "way). Default: every fold point")
+                        "way). Default: every fold point (0.5 with --scan)")
     p.add_argument("--scan", action="store_true",
                    help="settings for a scanned part: --pencil --pencil-search folds --pencil-left 0.5 "
-                        "--hop-lifted 3, each unless given (R4, H 0.01: contour and spiral within 1.05 H on the "
-                        "six scans measured; igea zigzag 1.039 H at 23x OpenCAMLib's raster, against 1.408 H by "
-                        "default; zigzag failed on two scans)")
+                        "--hop-lifted 3, each unless given (with --pencil-search samples, no --pencil-left). R4, H "
+                        "0.01: contour and spiral within 1.05 H on the six scans measured; igea zigzag 1.039 H at "
+                        "23x OpenCAMLib's raster, against 1.408 H by default; zigzag failed on two scans (1.19 / "
+                        "1.15 H), which passed when planned for 0.8 H and checked at H (--verify-scallop)")
     p.add_argument("--hop-lifted", type=float, default=None, metavar="L",
                    help="hop over runs of the path where the drop-cutter lifts the ball more than L mm above "
                         "its planned contact (undercuts, pockets tighter than the ball) where the hop is quicker "
                         "than riding the run: a rapid up to 1 mm clear of the part (never above the safe height), "
                         "across, and a plunge. A shorter program (igea, L = 3: 12-16 %% less time at the feeds, "
                         "rapids not counted) and a slightly quicker plan, a little more material at the rims of "
-                        "those regions (0: off, default; docs/issue5.md, \"Hops over lifted runs\")")
+                        "those regions (0: off, default; 3 with --scan; docs/issue5.md, \"Hops over lifted runs\")")
     p.add_argument("--rapid", type=float, default=5000.0, metavar="F",
                    help="the machine's rapid rate, mm/min, for deciding hops (5000)")
     p.add_argument("--blend", type=_blend, default=None, metavar="P|off",

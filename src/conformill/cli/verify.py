@@ -15,7 +15,6 @@ from pathlib import Path
 
 from conformill.cli.progress import sample_bar
 from conformill.errors import ConformillError
-from conformill.planning.steps import check_stock
 
 
 def add_arguments(parser) -> None:
@@ -219,6 +218,8 @@ def run(args) -> int:
     _positive("--scallop", args.scallop, allow_zero=True)
     _positive("--gouge", args.gouge, allow_zero=True)
     _positive("--reach-depth", args.reach_depth)
+    from conformill.planning.steps import check_stock  # numba: not at the CLI's import
+
     check_stock(args.stock, args.tool_radius, ConformillError, "--stock")
     _positive("--scale", args.scale)
     _positive("--chord-tol", args.chord_tol)

@@ -17,7 +17,6 @@ from pathlib import Path
 import numpy as np
 
 from conformill.errors import ConformillError
-from conformill.planning.steps import check_stock
 from conformill.output.atomic import check_writable
 
 log = logging.getLogger(__name__)
@@ -74,6 +73,8 @@ def run(args) -> int:
 
     if args.tool_radius is not None and not (math.isfinite(args.tool_radius) and args.tool_radius > 0):
         raise ConformillError(f"--tool-radius must be > 0 mm, got {args.tool_radius!r}")
+    from conformill.planning.steps import check_stock  # numba: not at the CLI's import
+
     check_stock(args.stock, args.tool_radius, ConformillError, "--stock")
     check_writable(args.output)
     mesh = read_mesh(args.mesh, scale=args.scale)

@@ -2,6 +2,7 @@
 
 from conformill.planning.steps import (
     check_params,
+    check_stock,
     domain_forward_step,
     domain_side_step,
     forward_step,
@@ -16,6 +17,7 @@ from conformill.planning.steps import (
 
 __all__ = [
     "check_params",
+    "check_stock",
     "side_interval",
     "side_interval_stock",
     "scallop_height",

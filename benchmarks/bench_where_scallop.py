@@ -45,18 +45,23 @@ import _common  # noqa: E402
 import bench_raster as BR  # noqa: E402
 
 
-def _frame_at(V, F, fr, X):
-    """The fit's frame interpolated at the points of the mesh nearest to ``X``."""
+def _nearest(V, F, X):
+    """Face and barycentric coordinates of the point of the mesh nearest to each of ``X``."""
     import igl
-
-    from conformill.geometry.differential import interpolate_frame
 
     _, face, C = igl.point_mesh_squared_distance(np.ascontiguousarray(X), np.ascontiguousarray(V),
                                                  np.ascontiguousarray(F, dtype=np.int64))
     a, b, c = (V[F[face, k]] for k in range(3))
     bary = np.asarray(igl.barycentric_coordinates(np.ascontiguousarray(C), np.ascontiguousarray(a),
                                                   np.ascontiguousarray(b), np.ascontiguousarray(c)))
-    return interpolate_frame(fr, F, face, bary)
+    return face, bary
+
+
+def _frame_at(V, F, fr, X):
+    """The fit's frame interpolated at the points of the mesh nearest to ``X``."""
+    from conformill.geometry.differential import interpolate_frame
+
+    return interpolate_frame(fr, F, *_nearest(V, F, X))
 
 
 def _curvature_along(f, t3):
@@ -72,16 +77,9 @@ def _curvature_along(f, t3):
 def _lift(cutter, V, F, X):
     """How far the drop lifts the ball placed at ``X`` (CC points on the mesh), r along the
     vertex normals interpolated there (as the cutter places it): ``drop - (X + r n)_z``, mm."""
-    import igl
-
     from conformill.geometry.differential import interpolate, vertex_normals
 
-    _, face, C = igl.point_mesh_squared_distance(np.ascontiguousarray(X), np.ascontiguousarray(V),
-                                                 np.ascontiguousarray(F, dtype=np.int64))
-    a, b, c = (V[F[face, k]] for k in range(3))
-    bary = np.asarray(igl.barycentric_coordinates(np.ascontiguousarray(C), np.ascontiguousarray(a),
-                                                  np.ascontiguousarray(b), np.ascontiguousarray(c)))
-    n = interpolate(vertex_normals(V, F), F, face, bary)
+    n = interpolate(vertex_normals(V, F), F, *_nearest(V, F, X))
     centre = X + cutter.radius * n / np.linalg.norm(n, axis=1, keepdims=True)
     return cutter.drop(centre[:, :2]) - centre[:, 2]
 

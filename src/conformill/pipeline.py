@@ -21,7 +21,7 @@ from conformill.output.gcode import coolant_on, path_control, tool_number
 from conformill.patterns.family import Planner
 from conformill.passes import PassBuilder, threads_can_overlap
 from conformill.planning.steps import check_params, side_interval
-from conformill.types import PENCIL_SEARCHES, Mesh, PlanResult, ToolPath
+from conformill.types import PENCIL_SEARCHES, Mesh, PathParams, PlanResult, ToolPath
 
 log = logging.getLogger(__name__)
 
@@ -225,11 +225,12 @@ class _Timer:
             self.t[name] = self.t.get(name, 0.0) + time.perf_counter() - t0
 
 
-def check_job(job: Job) -> None:
-    """Refuse a job that cannot be met (PlanningError, exit 3)."""
+def check_job(job: Job) -> PathParams:
+    """Refuse a job that cannot be met (PlanningError, exit 3); return its checked cutting
+    parameters (:func:`conformill.planning.steps.check_params`)."""
     if job.pattern not in PATTERNS:
         raise PlanningError(f"unknown pattern {job.pattern!r}; choose one of {', '.join(PATTERNS)}")
-    check_params(job.tool_radius, job.scallop, job.tolerance, job.stock)
+    params = check_params(job.tool_radius, job.scallop, job.tolerance, job.stock)
     for name in ("feed", "max_step", "clearance", "rapid"):
         v = getattr(job, name)
         if not np.isfinite(v) or v <= 0:
@@ -271,6 +272,7 @@ def check_job(job: Job) -> None:
     if b is not None and b > job.tool_radius:
         raise PlanningError(f"blend {b:g} mm is larger than the tool radius {job.tool_radius:g} mm: the controller "
                             f"could round the path's corners by more than the ball")
+    return params
 
 
 def face_normals(V: np.ndarray, F: np.ndarray):
@@ -428,9 +430,8 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
     from conformill.patterns.spiral import plan_spiral
     from conformill.patterns.zigzag import plan_zigzag
 
-    check_job(job)
+    params = check_job(job)
     timer = _Timer()
-    params = check_params(job.tool_radius, job.scallop, job.tolerance, job.stock)
     r, h, e, stock = params.tool_radius, params.scallop, params.tolerance, params.stock
     # the cutter places the centres of a ball of radius r + stock on the part: the ball of
     # radius r then rolls on the part's offset by the stock; tips are written r below them

@@ -57,8 +57,7 @@ def vertex_heat(mesh, program, tool_radius: float, gouge_tol: float = 1e-3,
     from conformill.verify.samples import SurfaceSamples, vertex_normals
     from conformill.verify.simulate import remaining_material
 
-    N = vertex_normals(mesh.V, mesh.F)
-    samples = SurfaceSamples.from_arrays(mesh.V + float(stock) * N, N)
+    samples = SurfaceSamples.from_arrays(mesh.V, vertex_normals(mesh.V, mesh.F)).offset(stock)
     rem, gouge, _, _ = remaining_material(samples, program, tool_radius)
     gouged = gouge > gouge_tol
     heat = np.where(gouged, -gouge, np.where(gouge > 0, 0.0, rem))

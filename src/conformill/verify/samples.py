@@ -8,7 +8,7 @@ surface.
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -46,6 +46,12 @@ class SurfaceSamples:
 
     def __len__(self) -> int:
         return int(self.points.shape[0])
+
+    def offset(self, distance: float) -> "SurfaceSamples":
+        """The samples moved ``distance`` (mm) along their normals: on the surface offset by
+        it (the part with its stock; negative: into the part). ``0`` gives ``self``."""
+        d = float(distance)
+        return self if d == 0.0 else replace(self, points=self.points + d * self.normals)
 
     @classmethod
     def from_arrays(cls, points, normals, boundary_distance=None, area: float = 0.0) -> "SurfaceSamples":

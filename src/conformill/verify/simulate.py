@@ -41,7 +41,7 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numba as nb
 import numpy as np
@@ -1037,8 +1037,7 @@ def verify(mesh, program: Program, tool_radius: float, n_samples: int = 200_000,
     if samples is None:
         samples = sample_surface(V, F, n_samples, seed=seed, normals=normals, boundary_spacing=min(0.1, r / 20),
                                  boundary_max=2 * r)
-    on_offset = samples if stock == 0.0 else replace(samples, points=samples.points + stock * samples.normals)
-    rem, g, hit, gj = remaining_material(on_offset, cut_program, r0, ray_cap=ray_cap, progress=progress)
+    rem, g, hit, gj = remaining_material(samples.offset(stock), cut_program, r0, ray_cap=ray_cap, progress=progress)
     feed_lines = program.line[program.motion == FEED]
     hit_line = np.where(hit >= 0, feed_lines[np.maximum(hit, 0)], -1)
     gouge_line = np.where(gj >= 0, feed_lines[np.maximum(gj, 0)], -1)

@@ -68,6 +68,62 @@ def test_verify_scallop_judges_against_the_given_height(part, tmp_path, capsys):
     assert v["reachable"]["scallop"]["p999"] > 1.05 * 0.05
 
 
+def test_replan_plans_again_until_the_judged_height_is_met(part, tmp_path, capsys):
+    # planned for 0.5 and judged at 0.4: the first program leaves about 0.5 (it fails), the
+    # next is planned for less, by the measured excess, and passes
+    out, rep = tmp_path / "r.nc", tmp_path / "r.json"
+    rc = main(["plan", str(part), "--pattern", "contour", "--tool-radius", "4", "--scallop", "0.5", "-o", str(out),
+               "--report", str(rep), "--verify-samples", "60000", "--verify-scallop", "0.4", "--replan", "3"])
+    text = capsys.readouterr().out
+    r = json.loads(rep.read_text())
+    rounds = r["replan"]
+    assert rc == 0 and r["verify"]["pass"] and r["verify"]["judged_h"] == 0.4
+    assert len(rounds) >= 2 and not rounds[0]["pass"] and rounds[0]["reachable_p999_over_h"] > 1.05
+    assert all(not x["pass"] for x in rounds[:-1]) and rounds[-1]["pass"]
+    h = [x["scallop"] for x in rounds]
+    assert h[0] == 0.5 and all(b < a for a, b in zip(h, h[1:]))
+    # each next scallop is the rule's: 0.97 x 1.05 H / p99.9 of the last, within [0.5, 0.95]
+    for a, b, x in zip(h, h[1:], rounds):
+        assert b == pytest.approx(a * min(max(0.97 * 1.05 / x["reachable_p999_over_h"], 0.5), 0.95), rel=1e-3)
+    # the program written and the report are the last plan's
+    assert r["job"]["scallop"] == h[-1] and r["verify"]["reachable"]["scallop_over_h"]["p999"] <= 1.05
+    assert "replanned" in out.read_text() and "replan" in text
+
+
+def test_replan_stops_after_n_plans_and_fails(part, tmp_path):
+    # judged far below what a plan can reach in one round: each round at most halves the
+    # scallop; after --replan 1 the check still fails (exit 1, files kept, both plans listed)
+    out, rep = tmp_path / "s.nc", tmp_path / "s.json"
+    rc = main(["plan", str(part), "--pattern", "contour", "--tool-radius", "4", "--scallop", "0.5", "-o", str(out),
+               "--report", str(rep), "--verify-samples", "60000", "--verify-scallop", "0.05", "--replan", "1", "-q"])
+    r = json.loads(rep.read_text())
+    assert rc == 1 and out.exists() and not r["verify"]["pass"]
+    assert [x["scallop"] for x in r["replan"]] == [0.5, 0.25]
+
+
+def _figures(p999_over_h, uncut=0.0, gouge=0.001, h=0.01):
+    p = p999_over_h * h
+    return {"pass": p <= 1.05 * h and uncut == 0 and gouge <= 0.01, "gouge_max": gouge,
+            "reachable": {"scallop": {"p999": p}, "uncut_fraction": uncut}}
+
+
+def test_replan_scallop_rule():
+    from conformill.cli.plan import replan_scallop
+
+    # a scallop-only failure: smaller by the measured excess, with a 0.97 margin
+    assert replan_scallop(_figures(1.19), 0.01, 0.01, 0.01) == pytest.approx(0.01 * 0.97 * 1.05 / 1.19, rel=1e-3)
+    # at least 5 % smaller, at most halved
+    assert replan_scallop(_figures(1.06), 0.01, 0.01, 0.01) == pytest.approx(0.0095)
+    assert replan_scallop(_figures(40.0), 0.01, 0.01, 0.01) == pytest.approx(0.005)
+    # judged at H but planned for less: the step is taken from what was planned
+    assert replan_scallop(_figures(1.19), 0.008, 0.01, 0.01) == pytest.approx(0.008 * 0.97 * 1.05 / 1.19, rel=1e-3)
+    # passed, or failed on what a smaller scallop does not mend: no more plans
+    assert replan_scallop(_figures(1.0), 0.01, 0.01, 0.01) is None
+    assert replan_scallop(_figures(1.19, uncut=1e-4), 0.01, 0.01, 0.01) is None
+    assert replan_scallop(_figures(1.19, gouge=0.02), 0.01, 0.01, 0.01) is None
+    assert replan_scallop(_figures(float("nan")), 0.01, 0.01, 0.01) is None
+
+
 def test_plan_is_deterministic(part, tmp_path):
     a, b = tmp_path / "a.nc", tmp_path / "b.nc"
     for o in (a, b):
@@ -99,6 +155,7 @@ def test_plan_programs_run_in_linuxcnc(part, tmp_path, pattern):
     (["--tool-radius", "4", "--scallop", "0.1", "--verify", "--verify-samples", "0"], 3, "samples"),
     (["--tool-radius", "4", "--scallop", "0.1", "--verify", "--verify-scallop", "0"], 3, "verify-scallop"),
     (["--tool-radius", "4", "--scallop", "0.1", "--verify", "--verify-scallop", "nan"], 3, "verify-scallop"),
+    (["--tool-radius", "4", "--scallop", "0.1", "--replan", "-1"], 3, "replan"),
     (["--tool-radius", "4", "--scallop", "0.1", "--pencil", "--pencil-density", "-5"], 3, "pencil-density"),
     (["--tool-radius", "4", "--scallop", "0.1", "--pencil", "--pencil-density", "nan"], 3, "pencil-density"),
     (["--tool-radius", "4", "--scallop", "0.1", "--pencil", "--pencil-search", "folds", "--pencil-left", "-1"], 3,

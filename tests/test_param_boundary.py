@@ -112,3 +112,18 @@ def test_user_corners_are_validated():
         parameterize(m, boundary="rectangle", corners="abcd")
     with pytest.raises(ParameterizationError, match="only used with the rectangle"):
         parameterize(m, boundary="circle", corners=tuple(c))
+
+
+def test_turning_from_the_boundary_faces_alone_is_the_same():
+    # parameterize sums the angles of the faces at the boundary only: every face at a
+    # boundary vertex is among them, so the sums there are the full mesh's, bit for bit
+    m = syn.freeform_patch(spacing=2.0)
+    loop = boundary_loops(m.F, m.n_vertices)[0]
+    on = np.zeros(m.n_vertices, dtype=bool)
+    on[loop] = True
+    Fb = m.F[on[m.F].any(axis=1)]
+    assert len(Fb) < len(m.F) // 4
+    full = boundary_turning(m.V, m.F, loop, corner_angles(m.V, m.F))
+    assert np.array_equal(boundary_turning(m.V, Fb, loop, corner_angles(m.V, Fb)), full)
+    p = parameterize(m, boundary="rectangle")
+    assert p.corners == tuple(int(c) for c in auto_corners(m.V, loop, full))

@@ -85,7 +85,12 @@ def parameterize(mesh: Mesh, boundary: str = "circle", weights: str = "geodesic"
         corner_ids = None
     else:
         if corners is None:
-            turn = boundary_turning(V, F, loop, corner_angles(V, F))
+            # the angles of the faces at the boundary only: the turning sums them at its
+            # vertices (the same sums, in the same order; 0.35-0.7 s at 620k faces for all)
+            on = np.zeros(n, dtype=bool)
+            on[loop] = True
+            Fb = F[np.flatnonzero(on[F].any(axis=1))]
+            turn = boundary_turning(V, Fb, loop, corner_angles(V, Fb))
             corners = auto_corners(V, loop, turn)
         uv_b, domain = rectangle_map(V, loop, corners)  # validates user corners
         corner_ids = tuple(int(c) for c in corners)

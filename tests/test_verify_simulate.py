@@ -242,3 +242,18 @@ def test_bad_inputs(flat):
         verify(flat, prog, 1.0, normals="bogus")
     with pytest.raises(ConformillError, match="samples"):
         verify(flat, prog, 1.0, n_samples=0)
+
+
+def test_first_pairs_keeps_each_pair_once():
+    # rapid_clearance's dedupe of (segment, face) pairs: one of each, the same set np.unique gives
+    from conformill.verify.simulate import _first_pairs
+
+    rng = np.random.default_rng(3)
+    seg = np.sort(rng.integers(0, 40, 20000))
+    tri = rng.integers(0, 300, 20000)
+    keep = _first_pairs(seg, tri, 300)
+    key = seg * 300 + tri
+    assert np.array_equal(np.sort(key[keep]), np.unique(key))
+    # the first occurrence of each is the one kept
+    _, first = np.unique(key, return_index=True)
+    assert np.array_equal(np.flatnonzero(keep), np.sort(first))

@@ -254,7 +254,7 @@ def read_gcode(source, chord_tol: float = 0.001, start=None, block_delete: bool 
     plane = 17
     feed = math.nan
     pos = [math.nan, math.nan, math.nan] if start is None else [float(c) for c in np.asarray(start, float).reshape(3)]
-    pts: list = []  # list of (x, y, z) or (m, 3) arrays for arcs
+    pts: list = []  # (x, y, z) per point, the arcs' chords' points included
     mot: list = []
     lin: list = []
     fed: list = []
@@ -393,26 +393,28 @@ def read_gcode(source, chord_tol: float = 0.001, start=None, block_delete: bool 
                 else:
                     centre = (p0[0] + vals.get("I", 0.0) * scale, p0[1] + vals.get("J", 0.0) * scale)
             arc = _arc_points(p0, p1, centre, mode == 2, turns, chord_tol, 0.05, lineno, raw)
-            pts.append(arc)
-            mot.append(np.full(len(arc), FEED, dtype=np.int8))
-            lin.append(np.full(len(arc), lineno, dtype=np.int64))
-            fed.append(np.full(len(arc), feed))
+            pts.extend(arc.tolist())
+            mot.extend([FEED] * len(arc))
+            lin.extend([lineno] * len(arc))
+            fed.extend([feed] * len(arc))
         else:
             if any(k in vals for k in "IJR"):
                 raise _error(lineno, raw, f"arc words on a G{mode} move")
-            pts.append(np.array([target]))
-            mot.append(np.array([RAPID if mode == 0 else FEED], dtype=np.int8))
-            lin.append(np.array([lineno], dtype=np.int64))
-            fed.append(np.array([feed]))
+            # plain lists, one array each at the end (four small arrays per move were a third
+            # of the reading time)
+            pts.append(target)
+            mot.append(RAPID if mode == 0 else FEED)
+            lin.append(lineno)
+            fed.append(feed)
         if mode != 0 and path_mode not in path_modes:  # a feed move (G1, or an arc)
             path_modes.append(path_mode)
         pos = target
 
     if pts:
-        P = np.vstack(pts).astype(np.float64)
-        M = np.concatenate(mot)
-        L = np.concatenate(lin)
-        Fd = np.concatenate(fed)
+        P = np.array(pts, dtype=np.float64).reshape(-1, 3)
+        M = np.array(mot, dtype=np.int8)
+        L = np.array(lin, dtype=np.int64)
+        Fd = np.array(fed, dtype=np.float64)
     else:
         P = np.zeros((0, 3))
         M = np.zeros(0, dtype=np.int8)

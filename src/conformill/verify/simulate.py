@@ -39,6 +39,7 @@ nothing; one that is wrong only near other centres could hide a better ball).
 
 from __future__ import annotations
 
+import itertools
 import logging
 import math
 from dataclasses import dataclass, field
@@ -565,8 +566,22 @@ def _near_triangles(tree, X, rad):
     of ``X`` (``rad`` scalar or per point), as index pairs into ``X`` and the faces."""
     lists = tree.query_ball_point(X, rad, workers=-1)
     lens = np.fromiter((len(x) for x in lists), dtype=np.int64, count=len(lists))
-    tri = np.fromiter((i for x in lists for i in x), dtype=np.int64, count=int(lens.sum()))
+    tri = np.fromiter(itertools.chain.from_iterable(lists), dtype=np.int64, count=int(lens.sum()))
     return np.repeat(np.arange(len(X)), lens), tri
+
+
+@nb.njit(cache=True, nogil=True)
+def _first_pairs(seg, tri, n_faces):
+    """Mask of the first occurrence of each ``(seg, tri)`` pair when ``seg`` does not
+    decrease (pairs of one segment together): one pass with the segment that last saw each
+    face, where sorting the pairs (``np.unique``) took 3.4 s for 6.3M on a hopped program."""
+    last = np.full(n_faces, -1, dtype=np.int64)
+    keep = np.empty(seg.shape[0], dtype=np.bool_)
+    for i in range(seg.shape[0]):
+        t = tri[i]
+        keep[i] = last[t] != seg[i]
+        last[t] = seg[i]
+    return keep
 
 
 def rapid_clearance(V, F, program: Program, tool_radius: float, cap: float = 5.0, retract_tol: float = 1e-6) -> dict:
@@ -636,9 +651,9 @@ def rapid_clearance(V, F, program: Program, tool_radius: float, cap: float = 5.0
         if near.any():
             rad = np.minimum(d0[near] + half[near], cap + r + half[near]) + half[near] + rmax
             owner, tri = _near_triangles(tree, S[near], rad)
-            seg = sid[near][owner]
-            key = np.unique(seg * len(F) + tri)
-            seg, tri = key // len(F), key % len(F)
+            seg = sid[near][owner]  # not decreasing: the samples are in segment order
+            keep = _first_pairs(seg, tri, len(F))
+            seg, tri = seg[keep], tri[keep]
             d = segment_triangle_distance(P, Q, V, F, seg, tri) - r
             exact = np.full(k, np.inf)
             np.minimum.at(exact, seg, d)

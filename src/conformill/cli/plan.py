@@ -70,7 +70,7 @@ def add_arguments(p) -> None:
                    help="settings for a scanned part: --pencil --pencil-search folds --pencil-left 0.5 "
                         "--hop-lifted 3, each unless given (with --pencil-search samples, no --pencil-left). R4, H "
                         "0.01: contour and spiral within 1.05 H on the six scans measured; igea zigzag 1.039 H at "
-                        "23x OpenCAMLib's raster, against 1.408 H by default; zigzag failed on two scans (1.19 / "
+                        "19-24x OpenCAMLib's raster, against 1.408 H by default; zigzag failed on two scans (1.19 / "
                         "1.15 H), which passed on a second plan with --replan (1.025 / 1.038 H, 6-8 %% more feed)")
     p.add_argument("--hop-lifted", type=float, default=None, metavar="L",
                    help="hop over runs of the path where the drop-cutter lifts the ball more than L mm above "

@@ -235,3 +235,21 @@ def test_unbounded_modes_and_one_mode_per_block():
         assert unbounded_mode(mode) is loose, mode
     with pytest.raises(GCodeError, match="line 2.*two path-control modes"):
         read_gcode("G21\nG61 G64 P0.1\nG0 X0 Y0 Z1\nG1 Z0 F10\n")
+
+
+def test_plain_linear_moves_read_as_the_general_parse_reads_them():
+    # "G1 X Y Z" lines take a short path; the same moves spelled otherwise (G01, lower case,
+    # no spaces, a trailing comment) take the general one: the programs must be identical,
+    # in mm and in inches, with a feed set before, and after a G91 (incremental: general only)
+    head = "G21 G90 G17\nG0 X0 Y0 Z5\nG1 Z0 F300\n"
+    moves = [(1.5, -2.25, 0.125), (3.0, .5, -1.0), (-4.0, 2.0, 0.0)]
+    fast = "".join(f"G1 X{x} Y{y} Z{z}\n" for x, y, z in moves)
+    slow = "".join(f"g01x{x}y{y}z{z} (c)\n" for x, y, z in moves)
+    tail = "G91\nG1 X1 Y1 Z1\nG90\nG1 X7 Y7 Z7\nG20\nG1 X1 Y2 Z3\nG0 Z5\nM30\n"
+    a, b = read_gcode(head + fast + tail), read_gcode(head + slow + tail)
+    for k in ("points", "motion", "line", "feed", "start"):
+        assert np.array_equal(getattr(a, k), getattr(b, k), equal_nan=True), k
+    assert a.path_modes == b.path_modes and a.units == b.units
+    assert np.allclose(a.points[2:5], moves)
+    assert np.allclose(a.points[5], [-3.0, 3.0, 1.0])  # the G91 move, from (-4, 2, 0)
+    assert np.allclose(a.points[-2], [25.4, 50.8, 76.2])  # G20: inches

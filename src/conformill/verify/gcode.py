@@ -68,6 +68,9 @@ _WHY_NOT = {
 _CANNED = {73.0, 74.0, 76.0, 81.0, 82.0, 83.0, 84.0, 85.0, 86.0, 87.0, 88.0, 89.0}
 _WORD = re.compile(r"([A-Z])([-+]?(?:\d+\.?\d*|\.\d+))")
 _COMMENT = re.compile(r"\([^)]*\)")
+#: A plain linear move with all three axes, as conformill's writer puts most of its lines:
+#: read without the general parse (the same result, about a third of the time)
+_G1_XYZ = re.compile(r"G1 X([-+]?(?:\d+\.?\d*|\.\d+)) Y([-+]?(?:\d+\.?\d*|\.\d+)) Z([-+]?(?:\d+\.?\d*|\.\d+))")
 
 
 def unbounded_mode(mode: str) -> bool:
@@ -264,6 +267,19 @@ def read_gcode(source, chord_tol: float = 0.001, start=None, block_delete: bool 
 
     for lineno, raw in enumerate(text.splitlines(), start=1):
         s = raw.strip()
+        if absolute:
+            g1 = _G1_XYZ.fullmatch(s)
+            if g1 is not None:  # what the general parse below does with such a line
+                mode = 1
+                target = [float(g1[1]) * scale, float(g1[2]) * scale, float(g1[3]) * scale]
+                pts.append(target)
+                mot.append(FEED)
+                lin.append(lineno)
+                fed.append(feed)
+                if path_mode not in path_modes:
+                    path_modes.append(path_mode)
+                pos = target
+                continue
         if not s or s.startswith("%"):
             continue
         if s.startswith("/"):

@@ -73,7 +73,8 @@ def test_replan_plans_again_until_the_judged_height_is_met(part, tmp_path, capsy
     # next is planned for less, by the measured excess, and passes
     out, rep = tmp_path / "r.nc", tmp_path / "r.json"
     rc = main(["plan", str(part), "--pattern", "contour", "--tool-radius", "4", "--scallop", "0.5", "-o", str(out),
-               "--report", str(rep), "--verify-samples", "60000", "--verify-scallop", "0.4", "--replan", "3"])
+               "--report", str(rep), "--verify-samples", "60000", "--verify-scallop", "0.4", "--replan", "3",
+               "--plot", str(tmp_path / "r.png"), "--html", str(tmp_path / "r.html"), "--holder-radius", "6"])
     text = capsys.readouterr().out
     r = json.loads(rep.read_text())
     rounds = r["replan"]
@@ -88,6 +89,9 @@ def test_replan_plans_again_until_the_judged_height_is_met(part, tmp_path, capsy
     # the program written and the report are the last plan's
     assert r["job"]["scallop"] == h[-1] and r["verify"]["reachable"]["scallop_over_h"]["p999"] <= 1.05
     assert "replanned" in out.read_text() and "replan" in text
+    # the picture, the viewer and the holder check are of the last plan's program
+    assert (tmp_path / "r.png").stat().st_size > 10_000 and "PASS" in (tmp_path / "r.html").read_text()
+    assert r["holder"]["worst_line"] <= r["program"]["n_lines"]
 
 
 def test_replan_stops_after_n_plans_and_fails(part, tmp_path):

@@ -65,7 +65,9 @@ def plot_plan(path, result, dpi: int = 110) -> None:
     ax1 = fig.add_subplot(1, 3, 2, projection="3d")
     ax1.set_title("tool tip paths on the part (mm), coloured by machining order", fontsize=10)
     Fd = F if len(F) <= 60000 else F[:: int(np.ceil(len(F) / 60000))]
-    ax1.plot_trisurf(V[:, 0], V[:, 1], V[:, 2], triangles=Fd, color="0.85", alpha=0.35, linewidth=0, shade=True)
+    surf = ax1.plot_trisurf(V[:, 0], V[:, 1], V[:, 2], triangles=Fd, color="0.85", alpha=0.35, linewidth=0,
+                            shade=True)
+    surf.set_in_layout(False)  # inside the axes' limits: tight_layout need not project it
     unreach = result.report.get("reachability", {}).get("concave_regions", [])
     for reg in unreach:
         c = np.asarray(reg["centre"], dtype=float)
@@ -83,6 +85,7 @@ def plot_plan(path, result, dpi: int = 110) -> None:
         if len(q) >= 2:
             segs = np.stack([q[:-1], q[1:]], axis=1)
             lc = Line3DCollection(segs, colors=cmap((done + idx[:-1]) / total), linewidths=0.4)
+            lc.set_in_layout(False)
             ax1.add_collection3d(lc)
         done += len(P)
     lo, hi = V.min(0), V.max(0)

@@ -261,7 +261,8 @@ def _run_job(args, job, judge_h: float) -> int:
             report["verify"] = v = _verify(result.mesh, program, job, args.verify_samples, args.quiet, judge_h)
             report["timings_s"]["verify"] = time.perf_counter() - t
             if args.replan:
-                rounds.append({"scallop": job.scallop, "reachable_p999_over_h": v["reachable"]["scallop_over_h"]["p999"],
+                rounds.append({"scallop": job.scallop,
+                               "reachable_p999_over_h": v["reachable"]["scallop_over_h"]["p999"],
                                "feed_m": stats["feed_length_mm"] / 1000.0, "cl_points": report["paths"]["cl_points"],
                                "pass": v["pass"], "seconds": time.perf_counter() - t_round})
             nxt = (replan_scallop(v, job.scallop, judge_h, job.tolerance)
@@ -364,9 +365,9 @@ def replan_scallop(v: dict, planned: float, judge_h: float, tolerance: float) ->
     Returns
     -------
     float or None
-        ``planned * clip(0.97 * 1.05 H / p99.9, 0.5, 0.95)``, to 4 significant digits, when the check failed on the
-        reachable scallop alone (p99.9 over ``1.05 H``, no reachable sample uncut, no gouge
-        beyond ``tolerance``); None when it passed or failed on anything a smaller scallop
+        ``planned * clip(0.97 * 1.05 H / p99.9, 0.5, 0.95)``, to 4 significant digits, when
+        the check failed on the reachable scallop alone (p99.9 over ``1.05 H``, no reachable
+        sample uncut, no gouge beyond ``tolerance``); None when it passed or failed on anything a smaller scallop
         does not mend. On the scans the verified p99.9 grows in proportion to the planned
         scallop (choi zigzag ``--scan``: 1.190 / 1.073 / 0.969 H planned for 1 / 0.9 / 0.8 H),
         so one more plan usually passes; the 0.97 is its margin.

@@ -105,6 +105,21 @@ def test_replan_stops_after_n_plans_and_fails(part, tmp_path):
     assert [x["scallop"] for x in r["replan"]] == [0.5, 0.25]
 
 
+def test_replan_warns_once(tmp_path, caplog):
+    # a V groove tighter than the ball: every plan warns of it; the second plan's repeat is not shown
+    m = synthetic.v_groove()
+    part = tmp_path / "groove.ply"
+    trimesh.Trimesh(m.V, m.F, process=False).export(part)
+    rep = tmp_path / "g.json"
+    with caplog.at_level("WARNING"):
+        rc = main(["plan", str(part), "--pattern", "contour", "--tool-radius", "4", "--scallop", "0.5",
+                   "-o", str(tmp_path / "g.nc"), "--report", str(rep), "--verify-samples", "60000",
+                   "--verify-scallop", "0.4", "--replan", "2"])
+    assert rc == 0 and len(json.loads(rep.read_text())["replan"]) == 2
+    said = [r.getMessage() for r in caplog.records if "radius at or below the tool radius" in r.getMessage()]
+    assert len(said) == 1
+
+
 def _figures(p999_over_h, uncut=0.0, gouge=0.001, h=0.01):
     p = p999_over_h * h
     return {"pass": p <= 1.05 * h and uncut == 0 and gouge <= 0.01, "gouge_max": gouge,

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import logging
 import sys
 import time
 
@@ -228,13 +229,22 @@ def _run_job(args, job, judge_h: float) -> int:
     mesh = read_mesh(args.mesh, scale=args.scale)
     t_read = time.perf_counter() - t
     rounds = []  # --replan: one entry per plan
+    once = _Once() if args.replan else None  # the same mesh warns the same on every plan: once is enough
     with all_or_nothing(args.output, args.report, args.plot, args.html):
         while True:
             t_round = time.perf_counter()
             progress = StageProgress(enabled=not args.quiet)
             try:
                 with progress.logging():
-                    result = plan(mesh, job, progress=progress)
+                    # the handlers that print during the plan (a bar's stand-in among them)
+                    handlers = list(logging.getLogger().handlers) if once is not None else []
+                    for hd in handlers:
+                        hd.addFilter(once)
+                    try:
+                        result = plan(mesh, job, progress=progress)
+                    finally:
+                        for hd in handlers:
+                            hd.removeFilter(once)
             finally:
                 progress.close()
             report = result.report
@@ -317,6 +327,27 @@ def _run_job(args, job, judge_h: float) -> int:
     if args.verify and not report["verify"]["pass"]:
         return 1  # the files are kept for inspection; the check failed
     return 0
+
+
+class _Once(logging.Filter):
+    """Lets each warning (logger and text) through once: ``--replan``'s later plans of the
+    same part repeat the first one's."""
+
+    def __init__(self):
+        super().__init__()
+        self.seen = set()
+
+    def filter(self, record) -> bool:
+        if record.levelno < logging.WARNING:
+            return True
+        # decided once per record: every handler it passes through gets the same answer
+        verdict = getattr(record, "_conformill_first", None)
+        if verdict is None:
+            key = (record.name, record.getMessage())
+            verdict = key not in self.seen
+            self.seen.add(key)
+            record._conformill_first = verdict
+        return verdict
 
 
 def _header(args, job, result) -> dict:

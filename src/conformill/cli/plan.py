@@ -3,11 +3,10 @@
 from __future__ import annotations
 
 import argparse
-import logging
 import sys
 import time
 
-from conformill.cli.progress import StageProgress, sample_bar
+from conformill.cli.progress import StageProgress, WarnOnce, printed_through, sample_bar
 from conformill.errors import ConformillError, PlanningError
 
 
@@ -229,22 +228,14 @@ def _run_job(args, job, judge_h: float) -> int:
     mesh = read_mesh(args.mesh, scale=args.scale)
     t_read = time.perf_counter() - t
     rounds = []  # --replan: one entry per plan
-    once = _Once() if args.replan else None  # the same mesh warns the same on every plan: once is enough
+    once = WarnOnce() if args.replan else None  # the same mesh warns the same on every plan: once is enough
     with all_or_nothing(args.output, args.report, args.plot, args.html):
         while True:
             t_round = time.perf_counter()
             progress = StageProgress(enabled=not args.quiet)
             try:
-                with progress.logging():
-                    # the handlers that print during the plan (a bar's stand-in among them)
-                    handlers = list(logging.getLogger().handlers) if once is not None else []
-                    for hd in handlers:
-                        hd.addFilter(once)
-                    try:
-                        result = plan(mesh, job, progress=progress)
-                    finally:
-                        for hd in handlers:
-                            hd.removeFilter(once)
+                with progress.logging(), printed_through(once):
+                    result = plan(mesh, job, progress=progress)
             finally:
                 progress.close()
             report = result.report
@@ -329,27 +320,6 @@ def _run_job(args, job, judge_h: float) -> int:
     return 0
 
 
-class _Once(logging.Filter):
-    """Lets each warning (logger and text) through once: ``--replan``'s later plans of the
-    same part repeat the first one's."""
-
-    def __init__(self):
-        super().__init__()
-        self.seen = set()
-
-    def filter(self, record) -> bool:
-        if record.levelno < logging.WARNING:
-            return True
-        # decided once per record: every handler it passes through gets the same answer
-        verdict = getattr(record, "_conformill_first", None)
-        if verdict is None:
-            key = (record.name, record.getMessage())
-            verdict = key not in self.seen
-            self.seen.add(key)
-            record._conformill_first = verdict
-        return verdict
-
-
 def _header(args, job, result) -> dict:
     """The program header's fields: the job as planned."""
     header = {
@@ -398,8 +368,8 @@ def replan_scallop(v: dict, planned: float, judge_h: float, tolerance: float) ->
     float or None
         ``planned * clip(0.97 * 1.05 H / p99.9, 0.5, 0.95)``, to 4 significant digits, when
         the check failed on the reachable scallop alone (p99.9 over ``1.05 H``, no reachable
-        sample uncut, no gouge beyond ``tolerance``); None when it passed or failed on anything a smaller scallop
-        does not mend. On the scans the verified p99.9 grows in proportion to the planned
+        sample uncut, no gouge beyond ``tolerance``); None when it passed or failed on
+        anything a smaller scallop does not mend. On the scans the verified p99.9 grows in proportion to the planned
         scallop (choi zigzag ``--scan``: 1.190 / 1.073 / 0.969 H planned for 1 / 0.9 / 0.8 H),
         so one more plan usually passes; the 0.97 is its margin.
     """

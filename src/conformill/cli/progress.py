@@ -64,6 +64,42 @@ def log_above_bars(enabled: bool = True):
     return logging_redirect_tqdm(loggers=[root])
 
 
+class WarnOnce(logging.Filter):
+    """Lets each warning (logger and text) through once: ``--replan``'s later plans of the
+    same part repeat the first one's."""
+
+    def __init__(self):
+        super().__init__()
+        self.seen = set()
+
+    def filter(self, record) -> bool:
+        if record.levelno < logging.WARNING:
+            return True
+        # decided once per record: every handler it passes through gets the same answer
+        verdict = getattr(record, "_conformill_first", None)
+        if verdict is None:
+            key = (record.name, record.getMessage())
+            verdict = key not in self.seen
+            self.seen.add(key)
+            record._conformill_first = verdict
+        return verdict
+
+
+@contextlib.contextmanager
+def printed_through(flt):
+    """Context in which ``flt`` (a :class:`logging.Filter`; None: nothing) filters what the
+    root logger's handlers print, those in place on entry: inside :meth:`StageProgress.logging`
+    that is the stand-in writing above the bar."""
+    handlers = list(logging.getLogger().handlers) if flt is not None else []
+    for hd in handlers:
+        hd.addFilter(flt)
+    try:
+        yield
+    finally:
+        for hd in handlers:
+            hd.removeFilter(flt)
+
+
 @contextlib.contextmanager
 def sample_bar(total: int, desc: str, enabled: bool = True):
     """A bar of ``total`` samples on a terminal, log lines written above it; yields its

@@ -106,6 +106,45 @@ class TestBestCentres:
         d = rest[k][fin] - ref[fin]
         assert np.mean(np.abs(d) < 1e-3) >= 0.9 and abs(np.median(d)) < 1e-4
 
+    def test_samples_under_a_roof_are_not_searched(self):
+        # a floor at z = 0 and a roof 2 mm above it over x < 0 (two triangles, their diagonal
+        # from (-10, -10) to (0, 10)): no ball on the drop surface reaches under the roof, so
+        # a floor sample there keeps more than 2 mm along +Z (the ball's surface crosses the
+        # normal above the roof). The roof test says so without a search (state 4), exactly
+        # where the roof's triangle lies over the whole normal up to give_up; every other row
+        # is the search's own, and the search confirms the roofed rows.
+        floor = syn.plane(size=20.0, spacing=1.0)
+        roof = np.array([[-10.0, -10.0, 2.0], [0.0, -10.0, 2.0], [0.0, 10.0, 2.0], [-10.0, 10.0, 2.0]])
+        V = np.vstack([floor.V, roof])
+        k = len(floor.V)
+        F = np.vstack([floor.F, [[k, k + 1, k + 2], [k, k + 2, k + 3]]])
+        cut = BallCutter(V, F, R)
+        g = 0.0105
+        tilt = np.array([np.sin(np.radians(30.0)), 0.0, np.cos(np.radians(30.0))])
+        up = np.array([0.0, 0.0, 1.0])
+        rows = [((-3.0, -5.0), up, True), ((-0.02, -5.0), tilt, True),  # under the roof
+                ((-0.005, -5.0), tilt, False),  # the normal leaves the roof's shadow 5.25 um on
+                ((-0.005, -5.0), -tilt * [1, 1, -1], True),  # ... unless it points away from the edge
+                ((-7.5 + 0.004, -5.0), tilt * [-1, 1, 1], False),  # crosses the roof's diagonal
+                ((5.0, 2.0), up, False), ((6.0, -4.0), tilt, False)]  # in the open
+        P = np.array([[x, y, 0.0] for (x, y), _, _ in rows])
+        N = np.array([n for _, n, _ in rows])
+        faces = _faces_under(floor.V, floor.F, P)  # the floor's triangles come first in F
+        C, rest, state = best_centres(cut, P, N, faces, low=0.0015, give_up=g)
+        C0, rest0, state0 = best_centres(cut, P, N, faces, low=0.0015, give_up=g, roof=False)
+        roofed = np.array([r for _, _, r in rows])
+        np.testing.assert_array_equal(state == 4, roofed)
+        assert np.isnan(C[roofed]).all() and np.isinf(rest[roofed]).all()
+        np.testing.assert_array_equal(C[~roofed], C0[~roofed])
+        np.testing.assert_array_equal(rest[~roofed], rest0[~roofed])
+        np.testing.assert_array_equal(state[~roofed], state0[~roofed])
+        # the search, asked: given up, or a ball that leaves more than 2 mm
+        assert np.all((state0[roofed] == 2) | (rest0[roofed] > 2.0))
+        assert np.all(state0[roofed] != 4) and state0[-2] == 0  # the open floor: the tangent ball fits
+        # without a finite give-up (or with it at or below low) nothing is roofed
+        assert not (best_centres(cut, P, N, faces, low=0.0015)[2] == 4).any()
+        assert not (best_centres(cut, P, N, faces, low=g, give_up=g)[2] == 4).any()
+
     def test_rejects_bad_face_index(self):
         m = syn.plane(size=10.0, spacing=2.0)
         cut = BallCutter(m.V, m.F, R)
@@ -531,3 +570,28 @@ def test_pencil_left_bad_jobs(over, words):
               pencil_left=0.5)
     with pytest.raises(PlanningError, match=words):
         plan(syn.v_groove(a_deg=8.0, half=10.0, step=0.5), Job(**{**job.__dict__, **over}))
+
+
+def test_roof_test_on_a_scan_changes_no_searched_row():
+    # face_choi (x1000 to mm, as SOURCES.md says), r = 4, h = 0.01: on its steep walls the
+    # roof test spares the search of about a quarter of the samples (11463 of 38259 when
+    # measured), every one a sample the search gives up on; every other row is the same.
+    from pathlib import Path
+
+    path = Path("/work/shared/meshes/face_choi.ply")
+    if not path.exists():
+        pytest.skip(f"{path} is absent")
+    from conformill.mesh.io import read_mesh
+
+    m = read_mesh(path, scale=1000.0)
+    cut = BallCutter(m.V, m.F, R)
+    h = 0.01
+    P, N, faces = surface_samples(m.V, m.F, 30.0, 0, below_nz=pencil._STEEP_NZ)
+    C, rest, state = best_centres(cut, P, N, faces, low=0.15 * h, give_up=1.05 * h)
+    C0, rest0, state0 = best_centres(cut, P, N, faces, low=0.15 * h, give_up=1.05 * h, roof=False)
+    roofed = state == 4
+    assert roofed.sum() > 0.1 * len(P)
+    assert np.all(state0[roofed] == 2)  # given up by the search itself
+    np.testing.assert_array_equal(state[~roofed], state0[~roofed])
+    np.testing.assert_array_equal(C[~roofed], C0[~roofed])
+    np.testing.assert_array_equal(rest[~roofed], rest0[~roofed])

@@ -108,6 +108,9 @@ _MAX_ROUNDS = 24
 _GIVE_UP = 1.05
 #: Samples per thread task (consecutive samples lie close: better cache use).
 _CHUNK = 256
+#: Margin (mm) of the roof test (:func:`_roofed`) over rounding: the triangle must be this
+#: much higher than the segment it roofs.
+_ROOF_SLACK = 1e-9
 #: With the fold search, samples whose normal has ``n_z`` below this (walls steeper than
 #: 78 deg) are searched one by one too: the XY grid crosses the folds there too rarely
 #: (session 23: on camelhead 61 % of the band centres of such samples lay more than 0.1 mm
@@ -140,6 +143,55 @@ def _gap(px, py, pz, nx, ny, nz, cx, cy, cz, r2):
         return np.inf
     t = -b - math.sqrt(disc)
     return t if t >= 0.0 else np.inf
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _roofed(px, py, pz, nx, ny, nz, g, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri):
+    """Whether one triangle of the part lies above the segment from ``p`` to ``p + g n``:
+    its XY projection holds both ends' (so the whole segment's) and it is higher than both
+    ends there (so than the whole segment: the plane's height less the segment's is linear).
+
+    Then no ball on the drop surface leaves ``g`` or less at ``p``, measured along ``n`` as
+    :func:`_gap` does: a point ``q`` of a ball whose centre ``c`` is on ``D`` has a free
+    vertical ray above it (``q + s Z`` lies on the ball centred at ``c + s Z``, above ``D``,
+    which meets no triangle), and the triangle crosses the ray above every point of the
+    segment.
+    """
+    i = int(math.floor((px - gx0) / cell))
+    j = int(math.floor((py - gy0) / cell))
+    if i < 0 or j < 0 or i >= ncx or j >= ncy:
+        return False
+    c = j * ncx + i
+    qx = px + g * nx
+    qy = py + g * ny
+    qz = pz + g * nz
+    xlo, xhi = min(px, qx), max(px, qx)
+    ylo, yhi = min(py, qy), max(py, qy)
+    zlo = max(pz, qz) + _ROOF_SLACK
+    for e in range(cstart[c], cstart[c + 1]):  # a triangle over the segment is over p: in p's cell
+        t = ctri[e]
+        if B[t, 4] <= zlo or B[t, 0] > xlo or B[t, 2] < xhi or B[t, 1] > ylo or B[t, 3] < yhi:
+            continue
+        x0, y0, z0 = T[t, 0], T[t, 1], T[t, 2]
+        x1, y1, z1 = T[t, 3], T[t, 4], T[t, 5]
+        x2, y2, z2 = T[t, 6], T[t, 7], T[t, 8]
+        det = (x1 - x0) * (y2 - y0) - (x2 - x0) * (y1 - y0)
+        if det == 0.0:
+            continue
+        above = True
+        for k in range(2):
+            x = px if k == 0 else qx
+            y = py if k == 0 else qy
+            z = pz if k == 0 else qz
+            l1 = ((x - x0) * (y2 - y0) - (y - y0) * (x2 - x0)) / det
+            l2 = ((x1 - x0) * (y - y0) - (y1 - y0) * (x - x0)) / det
+            l0 = 1.0 - l1 - l2
+            if not (l0 >= 0.0 and l1 >= 0.0 and l2 >= 0.0 and l0 * z0 + l1 * z1 + l2 * z2 > z + _ROOF_SLACK):
+                above = False
+                break
+        if above:
+            return True
+    return False
 
 
 @njit(cache=True, nogil=True)
@@ -175,13 +227,15 @@ def _model_search(px, py, pz, nx, ny, nz, sx, sy, r, r2, T, W, nw, spans, grids)
 
 @njit(cache=True, nogil=True, parallel=True)
 def _best_many(P, N, face, r, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, CP, maxwin,
-               spans, grids, low, give_up, blocks):
+               spans, grids, low, give_up, roof, blocks):
     """Per sample: best centre (x, y, z), its rest, and how the search ended.
 
     ``state``: 0 the tangent ball leaves at most ``low`` (no search), 1 searched (exact
     centre on D), 2 given up (model rest above ``give_up`` after a round), 3 rounds used up or
     working set full (with 24 rounds and room for 32 triangles only the rounds can run out; the
-    centre is dropped onto D, its value exact but maybe not the best).
+    centre is dropped onto D, its value exact but maybe not the best), 4 roofed (with
+    ``roof``: a triangle lies above the sample's normal up to ``give_up``, :func:`_roofed`;
+    no ball leaves ``give_up`` or less there; NaN centre, infinite rest).
     """
     k = P.shape[0]
     out = np.empty((k, 4))
@@ -195,6 +249,13 @@ def _best_many(P, N, face, r, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czma
         for q in range(ch * _CHUNK, min(k, (ch + 1) * _CHUNK)):
             px, py, pz = P[q, 0], P[q, 1], P[q, 2]
             nx, ny, nz = N[q, 0], N[q, 1], N[q, 2]
+            if roof and _roofed(px, py, pz, nx, ny, nz, give_up, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri):
+                out[q, 0] = np.nan
+                out[q, 1] = np.nan
+                out[q, 2] = np.nan
+                out[q, 3] = np.inf
+                state[q] = 4
+                continue
             tx = px + r * nx
             ty = py + r * ny
             z, t0 = _drop_point(tx, ty, r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, CP,
@@ -244,7 +305,7 @@ def _best_many(P, N, face, r, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czma
     return out, state
 
 
-def best_centres(cutter, P, N, faces, low: float = 0.0, give_up: float = np.inf):
+def best_centres(cutter, P, N, faces, low: float = 0.0, give_up: float = np.inf, roof: bool = True):
     """Best ball centres on the drop surface for surface samples (the working-set search).
 
     Parameters
@@ -260,6 +321,13 @@ def best_centres(cutter, P, N, faces, low: float = 0.0, give_up: float = np.inf)
     give_up : float
         Samples whose model rest exceeds this (mm) after a round are not searched further
         (their true rest exceeds it too; the row's z is then the model's).
+    roof : bool
+        With a finite ``give_up`` above ``low``: samples under a triangle of the part that
+        lies above everything within ``give_up`` of them (an overhang, the far side of a
+        wall; :func:`_roofed`) are not searched, since no ball on the drop surface leaves
+        ``give_up`` or less there. The other rows are the same either way. On igea's steep
+        walls (r = 4, h = 0.01, give-up 1.05 h) 20863 of the 35249 samples the search gave up
+        on are roofed (choi: 11463 of 15381), and none of the others.
 
     Returns
     -------
@@ -269,7 +337,8 @@ def best_centres(cutter, P, N, faces, low: float = 0.0, give_up: float = np.inf)
         Material it leaves at the sample along the normal (mm).
     state : (k,) int8
         0 not searched (tangent ball within ``low``), 1 searched, 2 given up, 3 rounds used up
-        (the centre dropped onto D: its value exact, maybe not the best).
+        (the centre dropped onto D: its value exact, maybe not the best), 4 roofed (NaN
+        centre, infinite rest).
     """
     P = np.ascontiguousarray(P, dtype=np.float64)
     N = np.ascontiguousarray(N, dtype=np.float64)
@@ -282,7 +351,8 @@ def best_centres(cutter, P, N, faces, low: float = 0.0, give_up: float = np.inf)
     blocks = np.random.default_rng(0).permutation((len(P) + _CHUNK - 1) // _CHUNK)
     out, state = _best_many(P, N, tri, cutter.radius, *cutter._kernel_args(),
                             np.asarray(_SPANS, dtype=np.float64) * cutter.radius, np.asarray(_GRIDS, dtype=np.int64),
-                            float(low), float(give_up), blocks)
+                            float(low), float(give_up), bool(roof and math.isfinite(give_up) and give_up > low),
+                            blocks)
     return out[:, :3], out[:, 3], state
 
 
@@ -556,7 +626,8 @@ class PencilResult:
     stats : dict
         ``samples`` (facing the tool), ``searched``, ``centres`` (rest in the band),
         ``thinned``, ``chains``, ``passes``, ``cl_points``, ``feed_mm`` (cut length of the
-        passes, links included), ``given_up``, ``rounds_used_up`` (no pass for them),
+        passes, links included), ``given_up``, ``roofed`` (a triangle above the sample: not
+        searched, :func:`best_centres`), ``rounds_used_up`` (no pass for them),
         ``settled_points``, ``density_per_mm2`` (as used), ``low``, ``high``.
     """
 
@@ -781,8 +852,9 @@ def pencil_search(cutter, V, F, h: float, *, search: str = "samples", density: f
             cutter, P[a:a + step], N[a:a + step], faces[a:a + step], low=low * h, give_up=max(_GIVE_UP, high) * h)
         say(0.02 + 0.9 * min(a + step, k) / max(k, 1))
     useful = (state == 1) & (rest > low * h) & (rest <= high * h) & np.isfinite(C[:, 2])
-    stats = {"search": "samples", "samples": int(k), "searched": int(np.count_nonzero(state > 0)),
+    stats = {"search": "samples", "samples": int(k), "searched": int(np.count_nonzero((state > 0) & (state < 4))),
              "centres": int(useful.sum()), "given_up": int(np.count_nonzero(state == 2)),
+             "roofed": int(np.count_nonzero(state == 4)),
              "rounds_used_up": int(np.count_nonzero(state == 3)), "density_per_mm2": float(density),
              "low": float(low), "high": float(high)}
     n = int(useful.sum())
@@ -848,8 +920,10 @@ def link_chains(cutter, found: PencilChains, tol: float, link_max: float, start_
     """Order the chains of :func:`pencil_chains` from ``start_xy``, link and refine them
     (:func:`order_and_link`, :meth:`conformill.cutter.BallCutter.refine`); parameters as
     for :func:`pencil_passes`."""
-    # a lone centre (min_chain 1) joins its neighbours through the links; alone it is no move
-    passes = [cutter.refine(p, tol) for p in order_and_link(found.chains, start_xy, link_max) if len(p) >= 2]
+    # a lone centre (min_chain 1) joins its neighbours through the links; alone it is no move.
+    # One batch for all passes: the same points as one refine per pass (the checks are per
+    # move), without a round of kernel calls per pass (igea zigzag: 0.46 -> 0.1 s)
+    passes = cutter.refine_pieces([p for p in order_and_link(found.chains, start_xy, link_max) if len(p) >= 2], tol)
     feed = float(sum(np.linalg.norm(np.diff(p, axis=0), axis=1).sum() for p in passes))
     stats = {**found.stats, "passes": len(passes), "cl_points": int(sum(len(p) for p in passes)), "feed_mm": feed}
     return PencilResult(passes=passes, stats=stats)

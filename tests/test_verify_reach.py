@@ -1,6 +1,7 @@
 """Reachability of surface samples by a 3-axis ball (verify.simulate.unreachable_samples)."""
 
 import numpy as np
+import pytest
 
 from conformill.mesh.synthetic import cylinder_patch, height_field, plane, regular_polygon, v_groove
 from conformill.verify.samples import sample_surface
@@ -95,6 +96,82 @@ def test_rest_material_in_a_v_groove_matches_the_circle():
     # the tangent ball alone, dropped onto the part, leaves much more inside the band
     band = exact > 0.01
     assert np.all(tangent_rest(cut, P[band], N[band]) > 2 * exact[band])
+
+
+def _rest_cases():
+    """Parts and samples where the rest search has work: a V-groove's wall, a bumpy height
+    field with pits tighter than the ball, and a floor under a roof (no ball gets near)."""
+    from conformill.pencil import surface_samples
+
+    out = []
+    a = np.radians(30.0)
+    x0 = np.linspace(0.3, 3.0, 28)
+    P = np.column_stack([x0, np.full_like(x0, 0.3), x0 * np.tan(a)])
+    out.append((v_groove(), P, np.tile([-np.sin(a), 0.0, np.cos(a)], (len(x0), 1))))
+    outline = np.array([[-15.0, -15.0], [15.0, -15.0], [15.0, 15.0], [-15.0, 15.0]])
+    bumpy = height_field(outline, lambda x, y: 0.6 * np.sin(0.9 * x) * np.sin(0.8 * y) + 0.02 * x * y, 0.6,
+                         jitter=0.15, seed=2)
+    P, N, _ = surface_samples(bumpy.V, bumpy.F, density=1.0, seed=1)
+    inner = np.all(np.abs(P[:, :2]) < 11.0, axis=1)
+    out.append((bumpy, P[inner][:150], N[inner][:150]))
+    floor = plane(size=20.0, spacing=1.0)
+    k = len(floor.V)
+    V = np.vstack([floor.V, [[-10.0, -10.0, 2.0], [0.0, -10.0, 2.0], [0.0, 10.0, 2.0], [-10.0, 10.0, 2.0]]])
+    F = np.vstack([floor.F, [[k, k + 1, k + 2], [k, k + 2, k + 3]]])
+    xs = np.linspace(-6.0, 3.0, 19)
+    P = np.column_stack([xs, np.zeros_like(xs), np.zeros_like(xs)])
+    out.append((type(floor)(V=V, F=F, name="roofed floor"), P, np.tile([0.0, 0.0, 1.0], (len(xs), 1))))
+    return out
+
+
+@pytest.mark.parametrize("search", ["default", "confirm"])
+def test_pruned_rest_search_is_the_full_one(search):
+    # the refining grids drop only the centres that can beat their start's best so far (a
+    # ball whose centre is farther than r + best from the sample cannot): the same values
+    # and centres as dropping every centre
+    from conformill.cutter import BallCutter
+    from conformill.verify.rest import CONFIRM, rest_material
+
+    kw = CONFIRM if search == "confirm" else {}
+    for m, P, N in _rest_cases():
+        cut = BallCutter(m.V, m.F, 4.0)
+        dropped = []
+        full_drop = cut.drop
+        cut.drop = lambda xy: (dropped.append(len(xy)), full_drop(xy))[1]
+        t1, C1 = rest_material(cut, P, N, centres=True, **kw)
+        n_pruned = sum(dropped)
+        dropped.clear()
+        t0, C0 = rest_material(cut, P, N, centres=True, prune=False, **kw)
+        np.testing.assert_array_equal(t1, t0)
+        np.testing.assert_array_equal(C1, C0)
+        assert np.isfinite(t1).any()
+        assert n_pruned < 0.8 * sum(dropped), m.name  # the pruning has work to do on each part
+
+
+def test_pruned_rest_search_on_a_scan():
+    # face_choi (x1000, SOURCES.md), where the tangent ball leaves more than 0.01 mm: the
+    # samples verify searches. Both searches, pruned and not, give the same values and centres.
+    from pathlib import Path
+
+    from conformill.cutter import BallCutter
+    from conformill.mesh.io import read_mesh
+    from conformill.verify.rest import CONFIRM, rest_material, tangent_rest
+
+    path = Path("/work/shared/meshes/face_choi.ply")
+    if not path.exists():
+        pytest.skip(f"{path} is absent")
+    m = read_mesh(path, scale=1000.0)
+    S = sample_surface(m.V, m.F, 20000, seed=3)
+    up = S.normals[:, 2] > 0
+    P, N = S.points[up], S.normals[up]
+    cut = BallCutter(m.V, m.F, 4.0)
+    far = np.flatnonzero(tangent_rest(cut, P, N) > 0.01)[:120]
+    assert far.size >= 60
+    for kw in ({}, CONFIRM):
+        t1, C1 = rest_material(cut, P[far], N[far], centres=True, **kw)
+        t0, C0 = rest_material(cut, P[far], N[far], centres=True, prune=False, **kw)
+        np.testing.assert_array_equal(t1, t0)
+        np.testing.assert_array_equal(C1, C0)
 
 
 def _raster(m, r, dy=0.5, dx=0.05, half=11.5):
@@ -222,10 +299,10 @@ def test_a_second_search_confirms_each_excusal(monkeypatch):
     H = 0.02
     exact = _groove_rest(S.points, a, r)
     prog = read_gcode(_raster(m, r, half=9.5))
-    chunk, centres, _, _, _ = rest.rest_material.__defaults__
+    chunk, centres, _, _, _, prune = rest.rest_material.__defaults__
     weak = {"starts": 1, "coarse": (0.02, 3), "refine": (3, (0.005,))}
     monkeypatch.setattr(rest.rest_material, "__defaults__", (chunk, centres, weak["starts"], weak["coarse"],
-                                                             weak["refine"]))
+                                                             weak["refine"], prune))
     res = verify(m, prog, r, samples=S, scallop=H, judge="reachable", rest=True)
     assert np.all(exact[res.excused] > H - 3e-4) and np.all(exact[~res.excused] <= H + 3e-4)
     # every judged sample above H has a searched rest, and falls in one band

@@ -45,6 +45,8 @@ _GRID = 9
 #: refined on 13 x 13 grids over +-0.06 r down to +-0.06 r / 1024. On igea (contour,
 #: h = 0.01 mm, limit 1.05 h) it finds a ball within the limit for 15 of the 582 samples
 #: the first search excuses; 81 x 81 centres over +-r with 32 starts finds one for 4 more.
+#: Margin (mm) of :func:`_drop_within`'s test over rounding.
+_WITHIN_SLACK = 1e-7
 CONFIRM = {"starts": 16, "coarse": (0.8, 61), "refine": (13, tuple(0.06 / 4 ** k for k in range(6)))}
 
 
@@ -73,8 +75,38 @@ def tangent_rest(cutter, P, N) -> np.ndarray:
     return _ray_gap(P, N, C, r)[:, 0]
 
 
+def _drop_within(cutter, Q, p, bound):
+    """Drop heights at ``Q (k, 2)`` where the ball there could leave less than ``bound[i]`` at
+    ``p[i]``, ``+inf`` where it cannot.
+
+    A ball centred at ``c`` leaves at least ``|c - p| - r`` at ``p`` (along any direction),
+    so a centre whose drop height lies at or above ``p_z + sqrt((r + bound)^2 - d^2)`` (``d``
+    its XY distance from ``p``) cannot do better than ``bound``; nor can any centre with
+    ``d >= r + bound``. The first test is a drop that stops at the first triangle rising
+    above that height (:meth:`conformill.cutter.BallCutter._drop` with ``first``): over a
+    pocket or an undercut, where the drop surface lies far above the sample, that is one
+    triangle instead of the whole search. The others get a full drop.
+    """
+    r = cutter.radius
+    z = np.full(len(Q), np.inf)
+    reach = r + bound
+    d2 = ((Q - p[:, :2]) ** 2).sum(axis=1)
+    open_ = ~np.isfinite(bound)
+    near = open_ | (d2 < reach * reach)
+    test = np.flatnonzero(near & ~open_)
+    if test.size:
+        floor = p[test, 2] + np.sqrt(reach[test] ** 2 - d2[test]) + _WITHIN_SLACK
+        above = cutter._drop(Q[test], floor, first=True)[1] >= 0
+        near[test[above]] = False
+    todo = np.flatnonzero(near)
+    if todo.size:
+        z[todo] = cutter.drop(Q[todo])
+    return z
+
+
 def rest_material(cutter, P, N, chunk: int = 1000, centres: bool = False, starts: int = _STARTS,
-                  coarse: tuple = (_COARSE_SPAN, _COARSE_GRID), refine: tuple = (_GRID, _SPANS)):
+                  coarse: tuple = (_COARSE_SPAN, _COARSE_GRID), refine: tuple = (_GRID, _SPANS),
+                  prune: bool = True):
     """Least material (mm) along ``N`` at ``P`` over ball centres on the drop surface near the tangent one.
 
     Parameters
@@ -92,6 +124,12 @@ def rest_material(cutter, P, N, chunk: int = 1000, centres: bool = False, starts
         of ``r``) and size: a cheaper search (e.g. ``1, (0.2, 9)``) misses more.
     refine
         Size of the refining grids and their half-widths (units of ``r``), coarsest first.
+    prune
+        On the refining grids, drop only the centres that can beat their start's best so
+        far (:func:`_drop_within`); the others cannot change the answer, so the values
+        and centres are the same as without (tests compare them), for about half the time
+        where the part keeps the ball far from the sample (igea, the 490 samples ``verify``
+        excuses under a zigzag: the second search 26.3 -> 14.3 s, the first 5.5 -> 3.2 s).
 
     Returns
     -------
@@ -127,7 +165,12 @@ def rest_material(cutter, P, N, chunk: int = 1000, centres: bool = False, starts
                 break
             kk = live.size
             Q = (S[live, :, None, :2] + span * r * fine[None, None]).reshape(-1, 2)
-            Cq = np.concatenate([Q.reshape(kk, m, -1, 2), cutter.drop(Q).reshape(kk, m, -1)[..., None]], axis=3)
+            if prune:  # only a centre that can beat its start's best so far needs its height
+                g = fine.shape[0]
+                zq = _drop_within(cutter, Q, np.repeat(p[live], m * g, axis=0), np.repeat(St[live].reshape(-1), g))
+            else:
+                zq = cutter.drop(Q)
+            Cq = np.concatenate([Q.reshape(kk, m, -1, 2), zq.reshape(kk, m, -1)[..., None]], axis=3)
             tq = _ray_gap(p[live], n[live], Cq.reshape(kk, -1, 3), r).reshape(kk, m, -1)
             j = np.argmin(tq, axis=2)
             r2 = np.arange(kk)[:, None]

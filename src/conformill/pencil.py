@@ -326,8 +326,8 @@ def best_centres(cutter, P, N, faces, low: float = 0.0, give_up: float = np.inf,
         (their true rest exceeds it too; the row's z is then the model's).
     roof : bool
         With a finite ``give_up`` above ``low``: samples under a triangle of the part that
-        lies above everything within ``give_up`` of them (an overhang, the far side of a
-        wall; :func:`_roofed`) are not searched, since no ball on the drop surface leaves
+        lies above their normal up to ``give_up`` (an overhang, the far side of a wall;
+        :func:`_roofed`) are not searched, since no ball on the drop surface leaves
         ``give_up`` or less there. The other rows are the same either way. On igea's steep
         walls (r = 4, h = 0.01, give-up 1.05 h) 20863 of the 35249 samples the search gave up
         on are roofed (choi: 11463 of 15381), and none of the others.
@@ -925,7 +925,7 @@ def link_chains(cutter, found: PencilChains, tol: float, link_max: float, start_
     for :func:`pencil_passes`."""
     # a lone centre (min_chain 1) joins its neighbours through the links; alone it is no move.
     # One batch for all passes: the same points as one refine per pass (the checks are per
-    # move), without a round of kernel calls per pass (igea zigzag: 0.46 -> 0.1 s)
+    # move), without a round of kernel calls per pass (igea zigzag --scan: 0.51 -> 0.43 s)
     passes = cutter.refine_pieces([p for p in order_and_link(found.chains, start_xy, link_max) if len(p) >= 2], tol)
     feed = float(sum(np.linalg.norm(np.diff(p, axis=0), axis=1).sum() for p in passes))
     stats = {**found.stats, "passes": len(passes), "cl_points": int(sum(len(p) for p in passes)), "feed_mm": feed}

@@ -40,13 +40,13 @@ _STARTS = 8
 #: Half-widths of the refining grids around each start, in units of ``r``, and their size.
 _SPANS = (0.05, 0.0125, 0.003125, 0.00078125)
 _GRID = 9
+#: Margin (mm) of :func:`_drop_within`'s tests over rounding.
+_WITHIN_SLACK = 1e-7
 #: The second, wider and deeper search that ``verify`` runs where the first finds no ball
 #: within the limit, before it excuses a sample: 61 x 61 centres over +-0.8 r, the 16 best
 #: refined on 13 x 13 grids over +-0.06 r down to +-0.06 r / 1024. On igea (contour,
 #: h = 0.01 mm, limit 1.05 h) it finds a ball within the limit for 15 of the 582 samples
 #: the first search excuses; 81 x 81 centres over +-r with 32 starts finds one for 4 more.
-#: Margin (mm) of :func:`_drop_within`'s test over rounding.
-_WITHIN_SLACK = 1e-7
 CONFIRM = {"starts": 16, "coarse": (0.8, 61), "refine": (13, tuple(0.06 / 4 ** k for k in range(6)))}
 
 
@@ -82,7 +82,7 @@ def _drop_within(cutter, Q, p, bound):
     A ball centred at ``c`` leaves at least ``|c - p| - r`` at ``p`` (along any direction),
     so a centre whose drop height lies at or above ``p_z + sqrt((r + bound)^2 - d^2)`` (``d``
     its XY distance from ``p``) cannot do better than ``bound``; nor can any centre with
-    ``d >= r + bound``. The first test is a drop that stops at the first triangle rising
+    ``d`` beyond ``r + bound``. The first test is a drop that stops at the first triangle rising
     above that height (:meth:`conformill.cutter.BallCutter._drop` with ``first``): over a
     pocket or an undercut, where the drop surface lies far above the sample, that is one
     triangle instead of the whole search. The others get a full drop.
@@ -92,10 +92,10 @@ def _drop_within(cutter, Q, p, bound):
     reach = r + bound
     d2 = ((Q - p[:, :2]) ** 2).sum(axis=1)
     open_ = ~np.isfinite(bound)
-    near = open_ | (d2 < reach * reach)
+    near = open_ | (d2 < (reach + _WITHIN_SLACK) ** 2)
     test = np.flatnonzero(near & ~open_)
     if test.size:
-        floor = p[test, 2] + np.sqrt(reach[test] ** 2 - d2[test]) + _WITHIN_SLACK
+        floor = p[test, 2] + np.sqrt(np.maximum(reach[test] ** 2 - d2[test], 0.0)) + _WITHIN_SLACK
         above = cutter._drop(Q[test], floor, first=True)[1] >= 0
         near[test[above]] = False
     todo = np.flatnonzero(near)

@@ -55,7 +55,7 @@ from conformill.cutter import _drop_point, _set_drop, _set_top
 from conformill.errors import PlanningError
 from conformill.geometry.closest import closest_on_triangle
 
-__all__ = ["FoldPoints", "fold_points", "part_tops", "shadow_probes", "wedge_jump"]
+__all__ = ["FoldPoints", "fold_points", "part_tops", "shadow_probes", "wedge_jump", "xy_barycentric"]
 
 #: Most triangles per side of a crossing's model (more rounds than this end the search:
 #: the crossing is then the model's, its height lifted onto ``D``).
@@ -193,6 +193,21 @@ def _crossings(A, B, TA, TB, QA, QB, r, tol_t, T, Bt, gx0, gy0, cell, ncx, ncy, 
 
 
 @njit(cache=True, nogil=True, inline="always")
+def xy_barycentric(x, y, T, t):
+    """Barycentric coordinates ``(l0, l1, l2)`` of ``(x, y)`` in the XY projection of
+    triangle ``t`` (a row of the cutter's table ``T``); NaN when the projection is a line."""
+    x0, y0 = T[t, 0], T[t, 1]
+    x1, y1 = T[t, 3], T[t, 4]
+    x2, y2 = T[t, 6], T[t, 7]
+    det = (x1 - x0) * (y2 - y0) - (x2 - x0) * (y1 - y0)
+    if det == 0.0:
+        return np.nan, np.nan, np.nan
+    l1 = ((x - x0) * (y2 - y0) - (y - y0) * (x2 - x0)) / det
+    l2 = ((x1 - x0) * (y - y0) - (y1 - y0) * (x - x0)) / det
+    return 1.0 - l1 - l2, l1, l2
+
+
+@njit(cache=True, nogil=True, inline="always")
 def _top(x, y, T, Bt, gx0, gy0, cell, ncx, ncy, cstart, ctri):
     """Height of the part's top at ``(x, y)``: the highest triangle over the point (-inf: none).
 
@@ -211,17 +226,9 @@ def _top(x, y, T, Bt, gx0, gy0, cell, ncx, ncy, cstart, ctri):
         if (Bt[t, 4] + _BOX_PAD < best or x < Bt[t, 0] - _BOX_PAD or x > Bt[t, 2] + _BOX_PAD or y < Bt[t, 1] - _BOX_PAD
                 or y > Bt[t, 3] + _BOX_PAD):
             continue
-        x0, y0, z0 = T[t, 0], T[t, 1], T[t, 2]
-        x1, y1, z1 = T[t, 3], T[t, 4], T[t, 5]
-        x2, y2, z2 = T[t, 6], T[t, 7], T[t, 8]
-        det = (x1 - x0) * (y2 - y0) - (x2 - x0) * (y1 - y0)
-        if det == 0.0:
-            continue
-        l1 = ((x - x0) * (y2 - y0) - (y - y0) * (x2 - x0)) / det
-        l2 = ((x1 - x0) * (y - y0) - (y1 - y0) * (x - x0)) / det
-        l0 = 1.0 - l1 - l2
+        l0, l1, l2 = xy_barycentric(x, y, T, t)  # NaN: a vertical triangle, never over the point
         if l0 >= -1e-12 and l1 >= -1e-12 and l2 >= -1e-12:
-            zz = l0 * z0 + l1 * z1 + l2 * z2
+            zz = l0 * T[t, 2] + l1 * T[t, 5] + l2 * T[t, 8]
             if zz > best:
                 best = zz
     return best

@@ -91,6 +91,7 @@ from numba import get_num_threads, njit, prange
 
 from conformill.cutter import _drop_point, _set_drop
 from conformill.errors import PlanningError
+from conformill.folds import xy_barycentric
 from conformill.types import PENCIL_SEARCHES
 
 __all__ = ["SEARCHES", "PencilChains", "PencilFound", "PencilResult", "best_centres", "chains_of", "link_chains",
@@ -175,21 +176,14 @@ def _roofed(px, py, pz, nx, ny, nz, g, T, B, gx0, gy0, cell, ncx, ncy, cstart, c
         t = ctri[e]
         if B[t, 4] <= zlo or B[t, 0] > xlo or B[t, 2] < xhi or B[t, 1] > ylo or B[t, 3] < yhi:
             continue
-        x0, y0, z0 = T[t, 0], T[t, 1], T[t, 2]
-        x1, y1, z1 = T[t, 3], T[t, 4], T[t, 5]
-        x2, y2, z2 = T[t, 6], T[t, 7], T[t, 8]
-        det = (x1 - x0) * (y2 - y0) - (x2 - x0) * (y1 - y0)
-        if det == 0.0:
-            continue
         above = True
         for k in range(2):
             x = px if k == 0 else qx
             y = py if k == 0 else qy
             z = pz if k == 0 else qz
-            l1 = ((x - x0) * (y2 - y0) - (y - y0) * (x2 - x0)) / det
-            l2 = ((x1 - x0) * (y - y0) - (y1 - y0) * (x - x0)) / det
-            l0 = 1.0 - l1 - l2
-            if not (l0 >= 0.0 and l1 >= 0.0 and l2 >= 0.0 and l0 * z0 + l1 * z1 + l2 * z2 > z + _ROOF_SLACK):
+            l0, l1, l2 = xy_barycentric(x, y, T, t)  # NaN (a vertical triangle): no roof
+            if not (l0 >= 0.0 and l1 >= 0.0 and l2 >= 0.0
+                    and l0 * T[t, 2] + l1 * T[t, 5] + l2 * T[t, 8] > z + _ROOF_SLACK):
                 above = False
                 break
         if above:

@@ -573,9 +573,10 @@ def test_pencil_left_bad_jobs(over, words):
 
 
 def test_roof_test_on_a_scan_changes_no_searched_row():
-    # face_choi (x1000 to mm, as SOURCES.md says), r = 4, h = 0.01: on its steep walls the
-    # roof test spares the search of about a quarter of the samples (11463 of 38259 when
-    # measured), every one a sample the search gives up on; every other row is the same.
+    # face_choi (x1000 to mm, as SOURCES.md says, read as it is), r = 4, h = 0.01: on its
+    # steep walls the roof test spares the search of many samples (11463 of 38259 on the part
+    # as the pipeline orients it), every one a sample the search gives up on; every other
+    # row is the same.
     from pathlib import Path
 
     path = Path("/work/shared/meshes/face_choi.ply")

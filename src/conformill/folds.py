@@ -55,7 +55,7 @@ from conformill.cutter import _drop_point, _set_drop, _set_top
 from conformill.errors import PlanningError
 from conformill.geometry.closest import closest_on_triangle
 
-__all__ = ["FoldPoints", "fold_points", "part_tops", "shadow_probes", "wedge_jump", "xy_barycentric"]
+__all__ = ["FoldPoints", "fold_points", "part_tops", "shadow_probes", "cell_at", "wedge_jump", "xy_barycentric"]
 
 #: Most triangles per side of a crossing's model (more rounds than this end the search:
 #: the crossing is then the model's, its height lifted onto ``D``).
@@ -193,6 +193,16 @@ def _crossings(A, B, TA, TB, QA, QB, r, tol_t, T, Bt, gx0, gy0, cell, ncx, ncy, 
 
 
 @njit(cache=True, nogil=True, inline="always")
+def cell_at(x, y, gx0, gy0, cell, ncx, ncy):
+    """The cutter's grid cell holding ``(x, y)`` (``j * ncx + i``; -1 outside the grid)."""
+    i = int(math.floor((x - gx0) / cell))
+    j = int(math.floor((y - gy0) / cell))
+    if i < 0 or j < 0 or i >= ncx or j >= ncy:
+        return -1
+    return j * ncx + i
+
+
+@njit(cache=True, nogil=True, inline="always")
 def xy_barycentric(x, y, T, t):
     """Barycentric coordinates ``(l0, l1, l2)`` of ``(x, y)`` in the XY projection of
     triangle ``t`` (a row of the cutter's table ``T``); NaN when the projection is a line."""
@@ -215,11 +225,9 @@ def _top(x, y, T, Bt, gx0, gy0, cell, ncx, ncy, cstart, ctri):
     misses the point, or whose highest vertex lies more than 1e-6 mm below the best so far,
     are skipped before the test: the same value, fewer tests (``Bt``: the cutter's box
     table)."""
-    i = int(math.floor((x - gx0) / cell))
-    j = int(math.floor((y - gy0) / cell))
-    if i < 0 or j < 0 or i >= ncx or j >= ncy:
+    c = cell_at(x, y, gx0, gy0, cell, ncx, ncy)
+    if c < 0:
         return -np.inf
-    c = j * ncx + i
     best = -np.inf
     for e in range(cstart[c], cstart[c + 1]):
         t = ctri[e]

@@ -91,7 +91,7 @@ from numba import get_num_threads, njit, prange
 
 from conformill.cutter import _drop_point, _set_drop
 from conformill.errors import PlanningError
-from conformill.folds import xy_barycentric
+from conformill.folds import cell_at, xy_barycentric
 from conformill.types import PENCIL_SEARCHES
 
 __all__ = ["SEARCHES", "PencilChains", "PencilFound", "PencilResult", "best_centres", "chains_of", "link_chains",
@@ -161,11 +161,9 @@ def _roofed(px, py, pz, nx, ny, nz, g, T, B, gx0, gy0, cell, ncx, ncy, cstart, c
     which meets no triangle), and the triangle crosses the ray above every point of the
     segment.
     """
-    i = int(math.floor((px - gx0) / cell))
-    j = int(math.floor((py - gy0) / cell))
-    if i < 0 or j < 0 or i >= ncx or j >= ncy:
+    c = cell_at(px, py, gx0, gy0, cell, ncx, ncy)
+    if c < 0:
         return False
-    c = j * ncx + i
     qx = px + g * nx
     qy = py + g * ny
     qz = pz + g * nz

@@ -82,10 +82,11 @@ def _drop_within(cutter, Q, p, bound):
     A ball centred at ``c`` leaves at least ``|c - p| - r`` at ``p`` (along any direction),
     so a centre whose drop height lies at or above ``p_z + sqrt((r + bound)^2 - d^2)`` (``d``
     its XY distance from ``p``) cannot do better than ``bound``; nor can any centre with
-    ``d`` beyond ``r + bound``. The first test is a drop that stops at the first triangle rising
-    above that height (:meth:`conformill.cutter.BallCutter._drop` with ``first``): over a
-    pocket or an undercut, where the drop surface lies far above the sample, that is one
-    triangle instead of the whole search. The others get a full drop.
+    ``d`` beyond ``r + bound``. The first test is a drop that stops at the first triangle
+    rising above that height (:meth:`conformill.cutter.BallCutter._reaches`, whose 2e-9 mm
+    tie allowance the margin ``_WITHIN_SLACK`` covers): over a pocket or an undercut, where
+    the drop surface lies far above the sample, that is one triangle instead of the whole
+    search. The others get a full drop.
     """
     r = cutter.radius
     z = np.full(len(Q), np.inf)
@@ -96,8 +97,7 @@ def _drop_within(cutter, Q, p, bound):
     test = np.flatnonzero(near & ~open_)
     if test.size:
         floor = p[test, 2] + np.sqrt(np.maximum(reach[test] ** 2 - d2[test], 0.0)) + _WITHIN_SLACK
-        above = cutter._drop(Q[test], floor, first=True)[1] >= 0
-        near[test[above]] = False
+        near[test[cutter._reaches(Q[test], floor)]] = False
     todo = np.flatnonzero(near)
     if todo.size:
         z[todo] = cutter.drop(Q[todo])

@@ -73,10 +73,14 @@ Usage::
         # verify the kept programs again (timings and lengths from the JSON)
     python benchmarks/bench_raster.py --meshes igea --patterns zigzag contour --pencil folds
         # conformill's programs with pencil passes (--pencil --pencil-search folds)
+    python benchmarks/bench_raster.py --scan --md out.md   # every mesh, plan --scan's recipe
 
 ``--pencil SEARCH`` plans every conformill program with ``--pencil --pencil-search SEARCH``
 (and ``--pencil-density D``, default 30), so that the table puts the programs that meet
-1.05 h on the scans beside the raster, timed in the same run.
+1.05 h on the scans beside the raster, timed in the same run. ``--scan`` plans them with
+``conformill plan --scan``'s recipe instead (:data:`conformill.pipeline.SCAN_RECIPE`: the
+fold pencil at ``--pencil-density``, cut where the pattern left more than 0.5 h, hops over
+runs lifted 3 mm; session 38), the settings the README gives for scanned parts.
 
 Needs opencamlib; the shared meshes (/work/shared/meshes or $CONFORMILL_MESHES) for
 everything but the shipped samples.
@@ -234,16 +238,24 @@ SPACING = "adaptive"
 #: and its density (``--pencil-density``)
 PENCIL = None
 PENCIL_DENSITY = 30.0
+#: plan with ``conformill plan --scan``'s recipe (``--scan`` of this script: the pencil on the
+#: folds, cut where the pattern left more than 0.5 h, hops over runs lifted 3 mm)
+SCAN = False
 
 
 def _job(pattern, r, h, e, feed=1000.0):
-    from conformill.pipeline import Job
+    from conformill.pipeline import SCAN_RECIPE, Job
 
+    if SCAN:
+        return Job(pattern=pattern, tool_radius=r, scallop=h, tolerance=e, feed=feed, spacing=SPACING,
+                   pencil_density=PENCIL_DENSITY, **SCAN_RECIPE)
     return Job(pattern=pattern, tool_radius=r, scallop=h, tolerance=e, feed=feed, spacing=SPACING,
                pencil=PENCIL is not None, pencil_search=PENCIL or "samples", pencil_density=PENCIL_DENSITY)
 
 
 def _label(pattern):
+    if SCAN:
+        return f"conformill {pattern} --scan"
     return f"conformill {pattern}" + (f" + {PENCIL} pencil" if PENCIL else "")
 
 
@@ -324,7 +336,8 @@ def run_mesh(name, h, r, e, n_samples, folder: Path, log):
     # conformill first (it also gives the oriented mesh everything else uses)
     progs = {}
     for pat in PATTERNS:
-        p = folder / (f"{mesh.name}_{pat}_h{h:g}" + (f"_pencil_{PENCIL}{PENCIL_DENSITY:g}" if PENCIL else "") + ".nc")
+        tag = "_scan" if SCAN else (f"_pencil_{PENCIL}{PENCIL_DENSITY:g}" if PENCIL else "")
+        p = folder / f"{mesh.name}_{pat}_h{h:g}{tag}.nc"
         try:
             res, st, wall, cpu = conformill_program(mesh, pat, r, h, e, p)
         except Exception as exc:  # a failing pattern is a row of the table, not the end of the run
@@ -461,7 +474,7 @@ def reverify(old: dict, folder: Path, log) -> dict:
 
 
 def main(argv=None) -> int:
-    global SPACING, PATTERNS, PENCIL, PENCIL_DENSITY
+    global SPACING, PATTERNS, PENCIL, PENCIL_DENSITY, SCAN
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="h = 0.1 on two small meshes, 100k samples")
     ap.add_argument("--meshes", nargs="*", default=None, help=f"of {', '.join(_common.MESH_FILES)}")
@@ -477,6 +490,9 @@ def main(argv=None) -> int:
     ap.add_argument("--pencil", default=None, choices=["samples", "folds"],
                     help="plan conformill's programs with --pencil --pencil-search SEARCH (default: no pencil)")
     ap.add_argument("--pencil-density", type=float, default=30.0, help="conformill's --pencil-density (default 30)")
+    ap.add_argument("--scan", action="store_true",
+                    help="plan conformill's programs with conformill plan --scan's recipe (pencil on the folds, "
+                         "--pencil-left 0.5, --hop-lifted 3)")
     ap.add_argument("--md", default=None, help="write the tables as Markdown here")
     ap.add_argument("--json", default=None, help="write all figures as JSON here")
     ap.add_argument("--reverify", default=None, metavar="OLD.json",
@@ -485,6 +501,9 @@ def main(argv=None) -> int:
     SPACING = args.spacing
     PATTERNS = tuple(args.patterns)
     PENCIL, PENCIL_DENSITY = args.pencil, float(args.pencil_density)
+    SCAN = bool(args.scan)
+    if SCAN and PENCIL:
+        ap.error("--scan sets the pencil search (folds): leave out --pencil")
     if args.reverify and not args.keep:
         ap.error("--reverify needs --keep DIR: the folder the programs were kept in")
     if args.reverify:

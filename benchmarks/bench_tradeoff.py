@@ -36,9 +36,13 @@ same 400k area-uniform samples (seed 0), limit 1.05 h and reach depth h, exactly
 is run once in the same process and the ratio printed.
 
     python benchmarks/bench_tradeoff.py [MESH] [--pattern contour] [--h 0.01] [--samples 400000]
-        [--variants default "settle 0.25" ...] [--ocl] [--keep DIR]
+        [--variants default "settle 0.25" ...] [--ocl] [--keep DIR] [--subdivide K]
 
-``MESH`` is a short name of :data:`_common.MESH_FILES` (default ``igea``).
+``MESH`` is a short name of :data:`_common.MESH_FILES` (default ``igea``). ``--subdivide K``
+splits every triangle of it into four at its edge midpoints K times first
+(:func:`conformill.mesh.split.split_midpoints`: the same surface with 4^K times the faces;
+choi's 34144 faces become 136576, inside the 50k-150k faces of issue 5's comparison), and
+everything, the raster and the verify included, runs on the split mesh.
 """
 
 from __future__ import annotations
@@ -102,6 +106,8 @@ def main(argv=None) -> int:
     ap.add_argument("--variants", nargs="*", default=list(VARIANTS), choices=list(VARIANTS))
     ap.add_argument("--ocl", action="store_true", help="also time OpenCAMLib's raster once (minutes on igea)")
     ap.add_argument("--keep", default=None, help="folder to keep the programs in")
+    ap.add_argument("--subdivide", type=int, default=0, metavar="K",
+                    help="split every triangle of the part into four K times first (the same surface)")
     args = ap.parse_args(argv)
     import logging
 
@@ -113,6 +119,9 @@ def main(argv=None) -> int:
 
     h, r, e = args.h, args.r, args.e
     mesh, _ = _common.load_part(args.mesh)
+    for _k in range(max(args.subdivide, 0)):  # the same surface, four times the faces each time
+        Vs, Fs, _ = split_midpoints(mesh.V, mesh.F)
+        mesh = Mesh(V=Vs, F=Fs, name=mesh.name + "_x4")
     mesh, _ = orient_mesh(mesh, "none")  # as plan() sees it: the verify mesh is the planned one
     print(_common.machine())
     print(f"{mesh.name}: {mesh.n_faces} faces; {args.pattern}, r = {r:g}, h = {h:g}, e = {e:g}; "

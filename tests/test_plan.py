@@ -257,7 +257,7 @@ def test_settle_lowers_moves_into_a_groove_narrower_than_the_ball():
 
 def test_concave_warning_points_to_the_pencil(caplog):
     """A bowl tighter than the ball: the warning names the region and, without the pencil,
-    the option that adds passes there."""
+    the option that adds passes there and the scan settings that include it."""
     m = synthetic.sphere_cap(R=10.0, radius_xy=7.0, spacing=1.0, concave=True)
     for pencil in (False, True):
         caplog.clear()
@@ -268,3 +268,4 @@ def test_concave_warning_points_to_the_pencil(caplog):
         msgs = [r.getMessage() for r in caplog.records if "the ball cannot follow it there" in r.getMessage()]
         assert len(msgs) == 1
         assert ("--pencil adds passes" in msgs[0]) is (not pencil)
+        assert ("--scan" in msgs[0]) is (not pencil)  # and the scan settings, the pencil among them

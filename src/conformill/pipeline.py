@@ -528,7 +528,8 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
                             "the ball cannot follow it there (largest region near %s)%s", 100 * unreach_share,
                             " plus the stock" if stock else "", r_cut,
                             np.round(regions[0]["centre"], 2).tolist() if regions else "?",
-                            "" if job.pencil else "; --pencil adds passes where the ball wedges against them")
+                            "" if job.pencil else "; --pencil adds passes where the ball wedges against them "
+                            "(--scan: the settings for a scanned part, the pencil among them)")
 
         # dense sampling: about one mesh edge (the fitted fields are linear inside a face), never
         # coarser than a third of the flat side step

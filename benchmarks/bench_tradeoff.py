@@ -123,17 +123,19 @@ def main(argv=None) -> int:
     from conformill.mesh.split import split_midpoints
     from conformill.types import Mesh
 
+    def split_once(m, tag):  # the same surface, every triangle split into four at its edge midpoints
+        Vs, Fs, _ = split_midpoints(m.V, m.F)
+        return Mesh(V=Vs, F=Fs, name=m.name + tag)
+
     h, r, e = args.h, args.r, args.e
     mesh, _ = _common.load_part(args.mesh)
-    for _k in range(max(args.subdivide, 0)):  # the same surface, four times the faces each time
-        Vs, Fs, _ = split_midpoints(mesh.V, mesh.F)
-        mesh = Mesh(V=Vs, F=Fs, name=mesh.name + "_x4")
+    for _k in range(max(args.subdivide, 0)):
+        mesh = split_once(mesh, "_x4")
     mesh, _ = orient_mesh(mesh, "none")  # as plan() sees it: the verify mesh is the planned one
     print(_common.machine())
     print(f"{mesh.name}: {mesh.n_faces} faces; {args.pattern}, r = {r:g}, h = {h:g}, e = {e:g}; "
           f"verify: {args.samples} samples, seed 0, limit 1.05 h, reach depth h", flush=True)
     BR.warm_up()
-    ocl_s = None
     ocl_runs = []
 
     def time_ocl():
@@ -147,7 +149,6 @@ def main(argv=None) -> int:
         k1, k2 = _common.principal_curvatures(mesh)
         sampling, _ = BR.raster_sampling(mesh, k1, k2, r, e)
         time_ocl()  # the first run before the variants, the others after them (the host's spells hit both)
-        ocl_s = ocl_runs[0]
     samples = _common.verify_samples(mesh, args.samples, r)
     reach = _common.reachable_samples(mesh, samples, r, tol=h)
     split = None
@@ -157,9 +158,8 @@ def main(argv=None) -> int:
         folder.mkdir(parents=True, exist_ok=True)
         for name in args.variants:
             over, factor, fine = VARIANTS[name]
-            if fine and split is None:  # the same surface, every triangle split into four
-                Vs, Fs, _ = split_midpoints(mesh.V, mesh.F)
-                split = Mesh(V=Vs, F=Fs, name=mesh.name + "_split")
+            if fine and split is None:
+                split = split_once(mesh, "_split")
             job = Job(pattern=args.pattern, tool_radius=r, scallop=factor * h, tolerance=e, **over)
             path = folder / f"{mesh.name}_{args.pattern}_{name.replace(' ', '_').replace(',', '')}.nc"
             t0, c0 = time.perf_counter(), time.process_time()
@@ -175,6 +175,7 @@ def main(argv=None) -> int:
             rows.append(row)
             print(f"  {name}: {wall:.2f} s wall, {cpu:.2f} s cpu, {row['cl']} CL points, {row['feed_m']:.1f} m; "
                   f"reachable p99.9 {row['p999']:.3f} h, p99 {row['p99']:.3f} h", flush=True)
+    ocl_s = None
     if args.ocl:
         for _ in range(max(args.ocl_runs, 1) - 1):
             time_ocl()

@@ -224,6 +224,31 @@ def _set_drop(x, y, r, r2, T, W, nw):
 
 
 @njit(cache=True, nogil=True, inline="always")
+def cell_at(x, y, gx0, gy0, cell, ncx, ncy):
+    """The cutter's grid cell holding ``(x, y)`` (``j * ncx + i``; -1 outside the grid)."""
+    i = int(math.floor((x - gx0) / cell))
+    j = int(math.floor((y - gy0) / cell))
+    if i < 0 or j < 0 or i >= ncx or j >= ncy:
+        return -1
+    return j * ncx + i
+
+
+@njit(cache=True, nogil=True, inline="always")
+def xy_barycentric(x, y, T, t):
+    """Barycentric coordinates ``(l0, l1, l2)`` of ``(x, y)`` in the XY projection of
+    triangle ``t`` (a row of the cutter's table ``T``); NaN when the projection is a line."""
+    x0, y0 = T[t, 0], T[t, 1]
+    x1, y1 = T[t, 3], T[t, 4]
+    x2, y2 = T[t, 6], T[t, 7]
+    det = (x1 - x0) * (y2 - y0) - (x2 - x0) * (y1 - y0)
+    if det == 0.0:
+        return np.nan, np.nan, np.nan
+    l1 = ((x - x0) * (y2 - y0) - (y - y0) * (x2 - x0)) / det
+    l2 = ((x1 - x0) * (y - y0) - (y1 - y0) * (x - x0)) / det
+    return 1.0 - l1 - l2, l1, l2
+
+
+@njit(cache=True, nogil=True, inline="always")
 def _tangent_bound(px, py, r2, T, B, t):
     """Upper bound of the drop height onto triangle ``t`` (``+inf`` when not applicable).
 

@@ -51,11 +51,11 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit, prange
 
-from conformill.cutter import _drop_point, _set_drop, _set_top
+from conformill.cutter import _drop_point, _set_drop, _set_top, cell_at, xy_barycentric
 from conformill.errors import PlanningError
 from conformill.geometry.closest import closest_on_triangle
 
-__all__ = ["FoldPoints", "fold_points", "part_tops", "shadow_probes", "cell_at", "wedge_jump", "xy_barycentric"]
+__all__ = ["FoldPoints", "fold_points", "part_tops", "shadow_probes", "wedge_jump"]
 
 #: Most triangles per side of a crossing's model (more rounds than this end the search:
 #: the crossing is then the model's, its height lifted onto ``D``).
@@ -190,31 +190,6 @@ def _crossings(A, B, TA, TB, QA, QB, r, tol_t, T, Bt, gx0, gy0, cell, ncx, ncy, 
         out[k, 6], out[k, 7], out[k, 8] = _closest(x, y, z, T, tb)
         out[k, 9] = drops
     return out
-
-
-@njit(cache=True, nogil=True, inline="always")
-def cell_at(x, y, gx0, gy0, cell, ncx, ncy):
-    """The cutter's grid cell holding ``(x, y)`` (``j * ncx + i``; -1 outside the grid)."""
-    i = int(math.floor((x - gx0) / cell))
-    j = int(math.floor((y - gy0) / cell))
-    if i < 0 or j < 0 or i >= ncx or j >= ncy:
-        return -1
-    return j * ncx + i
-
-
-@njit(cache=True, nogil=True, inline="always")
-def xy_barycentric(x, y, T, t):
-    """Barycentric coordinates ``(l0, l1, l2)`` of ``(x, y)`` in the XY projection of
-    triangle ``t`` (a row of the cutter's table ``T``); NaN when the projection is a line."""
-    x0, y0 = T[t, 0], T[t, 1]
-    x1, y1 = T[t, 3], T[t, 4]
-    x2, y2 = T[t, 6], T[t, 7]
-    det = (x1 - x0) * (y2 - y0) - (x2 - x0) * (y1 - y0)
-    if det == 0.0:
-        return np.nan, np.nan, np.nan
-    l1 = ((x - x0) * (y2 - y0) - (y - y0) * (x2 - x0)) / det
-    l2 = ((x1 - x0) * (y - y0) - (y1 - y0) * (x - x0)) / det
-    return 1.0 - l1 - l2, l1, l2
 
 
 @njit(cache=True, nogil=True, inline="always")

@@ -89,9 +89,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import get_num_threads, njit, prange
 
-from conformill.cutter import _drop_point, _set_drop
+from conformill.cutter import _drop_point, _set_drop, cell_at, xy_barycentric
 from conformill.errors import PlanningError
-from conformill.folds import cell_at, xy_barycentric
 from conformill.types import PENCIL_SEARCHES
 
 __all__ = ["SEARCHES", "PencilChains", "PencilFound", "PencilResult", "best_centres", "chains_of", "link_chains",

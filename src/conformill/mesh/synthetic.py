@@ -185,6 +185,29 @@ def cylinder_patch(R: float = 40.0, length: float = 80.0, half_angle: float = 0.
                         name="trough" if concave else "cylinder")
 
 
+def overhang_cylinder(R: float = 8.0, length: float = 40.0, half_angle: float = 2.4, step: float = 0.6):
+    """A cylinder of radius ``R`` with axis along X wrapped past its sides: an overhang.
+
+    Vertices ``(x, R sin(t), R cos(t))`` on a regular grid over ``|x| <= length / 2`` and
+    ``|t| <= half_angle`` (rad; past ``pi / 2`` the surface faces down, ``n_z = cos(t)``),
+    faces oriented outwards (towards the tool on the top). Not a height field, so it is
+    built here rather than by :func:`height_field`.
+    """
+    nx = int(np.ceil(length / step)) + 1
+    nt = int(np.ceil(2 * half_angle * R / step)) + 1
+    X, T = np.meshgrid(np.linspace(-length / 2, length / 2, nx), np.linspace(-half_angle, half_angle, nt),
+                       indexing="ij")
+    V = np.column_stack([X.ravel(), R * np.sin(T).ravel(), R * np.cos(T).ravel()])
+    idx = np.arange(nx * nt).reshape(nx, nt)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
+    F = np.concatenate([np.column_stack([a, b, c]), np.column_stack([a, c, d])])
+    n = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+    outward = np.einsum("ij,ij->i", n, V[F].mean(axis=1) * [0.0, 1.0, 1.0])  # from the axis
+    if np.count_nonzero(outward < 0) > len(F) // 2:
+        F = F[:, ::-1]
+    return Mesh(V=V, F=np.ascontiguousarray(F, dtype=np.int64), name="overhang cylinder")
+
+
 def freeform_patch(spacing: float = 2.0, jitter: float = 0.3, seed: int = 1):
     """A CAD-like free-form patch (smooth bumps and a saddle) over a notched outline.
 

@@ -208,6 +208,13 @@ def _nearest_vertex(P, Q):
 #: building a k-d tree of it (about 2 ms of scanning).
 _SCAN_PAIRS = 2_000_000
 
+#: Samples whose unit normal (towards the tool) has ``n_z`` below this face down so far
+#: that no ball of a 3-axis tool touches them (the ball's upper half is hidden by its shank,
+#: so a contact needs ``n_z >= 0``): their own curvature does not set the side step, which is
+#: the flat one there (:meth:`Planner.allowed`). Between this and 0 they keep their own: the
+#: balls that ride the rim above an overhang are placed from those samples.
+UNDERCUT_NZ = -0.3
+
 
 def _exact_where_over(d: np.ndarray, limit: np.ndarray, P: np.ndarray, b, closed: bool) -> np.ndarray:
     """``d`` with the entries above ``limit`` recomputed exactly against curve ``b``
@@ -429,7 +436,9 @@ class Planner:
         """Allowed side interval ``l_s`` (mm) across domain tangents ``t`` at samples ``S``.
 
         Returns ``(ls, reach)``; ``reach`` is False where the ball cannot follow the
-        concave curvature across the path.
+        concave curvature across the path. Samples facing down past :data:`UNDERCUT_NZ`
+        get at least the flat interval: no ball touches them, so the scallop there is not
+        the program's (``verify`` leaves them out as unreachable).
         """
         kappa = S.curvature(S.across(t))
         # Where the path is concave along its direction, its straight moves ride above the
@@ -443,7 +452,13 @@ class Planner:
             h = h - np.nan_to_num(rise, nan=self.rise_tol)
         # with stock, the ball rolls on the offset surface (the cap holds there)
         ls, reach = side_interval_stock(h, self.params.tool_radius, kappa, self.params.stock, self.concave_cap)
-        return np.asarray(ls, dtype=np.float64), np.asarray(reach, dtype=bool)
+        ls = np.asarray(ls, dtype=np.float64)
+        down = S.n[:, 2] < UNDERCUT_NZ  # no ball touches these: the flat step, not theirs
+        if down.any():
+            flat, _ = side_interval_stock(self.params.scallop, self.params.tool_radius, np.zeros(1),
+                                          self.params.stock, self.concave_cap)
+            ls = np.where(down, np.maximum(ls, flat[0]), ls)
+        return ls, np.asarray(reach, dtype=bool)
 
     def domain_steps(self, c: Curve) -> np.ndarray:
         """Step in ``s`` allowed at each sample: ``l_s |r_t| / (sqrt(EG - F^2) rate)``."""

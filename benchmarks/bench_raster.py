@@ -246,11 +246,9 @@ SCAN = False
 def _job(pattern, r, h, e, feed=1000.0):
     from conformill.pipeline import SCAN_RECIPE, Job
 
-    if SCAN:
-        return Job(pattern=pattern, tool_radius=r, scallop=h, tolerance=e, feed=feed, spacing=SPACING,
-                   pencil_density=PENCIL_DENSITY, **SCAN_RECIPE)
+    pencil = dict(SCAN_RECIPE) if SCAN else {"pencil": PENCIL is not None, "pencil_search": PENCIL or "samples"}
     return Job(pattern=pattern, tool_radius=r, scallop=h, tolerance=e, feed=feed, spacing=SPACING,
-               pencil=PENCIL is not None, pencil_search=PENCIL or "samples", pencil_density=PENCIL_DENSITY)
+               pencil_density=PENCIL_DENSITY, **pencil)
 
 
 def _label(pattern):

@@ -479,6 +479,43 @@ class Planner:
             )
         return steps
 
+    def _bisect_step(self, family: Family, cur: Curve, level, hint, halvings: int = 40, rounds: int = 8):
+        """The next curve where the shrinks of the 3D check stalled.
+
+        A shrink scales the step by what the check measured, as if the allowed interval
+        stayed put; where the new curve's own interval shrinks as it moves back (it moves
+        into more curved ground), twelve shrinks can leave it still too far (620k igea
+        mesh, zigzag: 1.016 after twelve). Here the step's fraction ``g`` of the last try
+        (``level(g)``: the level or profile to evaluate) is halved until the check passes,
+        then bisected ``rounds`` times between that and the smallest fraction known to
+        fail; the largest passing fraction is taken. As ``g`` tends to 0 the new curve
+        tends to the current one and the check passes.
+
+        Returns ``(g, curve, d_fwd, ratio)``; the check's warning is logged only if no
+        fraction passed.
+        """
+        lo, hi, best = 0.0, 1.0, None
+        g = 0.5
+        for _ in range(halvings):
+            nxt = self.evaluate(family, level(g), tau=hint)
+            d_fwd, ratio = pair_distances(cur, nxt, family.closed)
+            if ratio <= 1.0 + 1e-9:
+                lo, best = g, (g, nxt, d_fwd, ratio)
+                break
+            hi, g = g, 0.5 * g
+        else:
+            log.warning("3D spacing check did not converge at offset %.6g (ratio %.3f)", cur.s, ratio)
+            return g, nxt, d_fwd, ratio
+        for _ in range(rounds):
+            g = 0.5 * (lo + hi)
+            nxt = self.evaluate(family, level(g), tau=hint)
+            d_fwd, ratio = pair_distances(cur, nxt, family.closed)
+            if ratio <= 1.0 + 1e-9:
+                lo, best = g, (g, nxt, d_fwd, ratio)
+            else:
+                hi = g
+        return best
+
     def run(self, family: Family, s0: float, s_max: float, max_paths: int = 200000, progress=None,
             on_curve=None):
         """Plan curves from ``s0`` to ``s_max`` (both included).
@@ -518,7 +555,9 @@ class Planner:
                 shrinks += 1
                 step = (s_next - cur.s) * min(0.995 / ratio, 0.999)
             else:
-                log.warning("3D spacing check did not converge at offset %.6g (ratio %.3f)", cur.s, ratio)
+                last = s_next - cur.s
+                g, nxt, d_fwd, ratio = self._bisect_step(family, cur, lambda g: min(cur.s + g * last, s_max), hint)
+                s_next = min(cur.s + g * last, s_max)
             realised.append(d_fwd)
             predicted.append(cur.sample.area_factor() / cur.sample.length(cur.t) * cur.rate * (s_next - cur.s))
             curves.append(nxt)
@@ -625,7 +664,10 @@ class Planner:
                     f = np.full(len(lv), min(0.995 / ratio, 0.999))
                 T = profile(lv + (T - lv) * f)
             else:
-                log.warning("3D spacing check did not converge at offset %.6g (ratio %.3f)", cur.s, ratio)
+                T_last = T
+                g, nxt, d_fwd, ratio = self._bisect_step(
+                    family, cur, lambda g: Levels(cur.tau, profile(lv + (T_last - lv) * g)), hint)
+                T = profile(lv + (T_last - lv) * g)
             realised.append(d_fwd)
             predicted.append(cur.sample.area_factor() / cur.sample.length(cur.t) * cur.rate * (T - lv))
             curves.append(nxt)

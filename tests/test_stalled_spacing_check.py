@@ -1,0 +1,101 @@
+"""The 3D spacing check where its shrinks stall (patterns.family.Planner._bisect_step).
+
+A shrink scales the step by the ratio the check measured. Where the next path's own allowed
+interval shrinks as the path moves back, twelve shrinks could leave it still too far (the
+620k igea mesh, zigzag: ratio 1.016). Here the check is made to stall on purpose: for the
+first path, any step beyond a set fraction of the first try is reported 2 % too far, which
+the shrinks (at most 2.5 % each) cannot clear in twelve tries.
+"""
+
+import logging
+
+import numpy as np
+import pytest
+
+from conformill.mesh import synthetic
+from conformill.patterns import family
+from conformill.pipeline import Job, plan
+
+
+@pytest.fixture(scope="module")
+def cap():
+    return synthetic.sphere_cap(R=50.0, radius_xy=20.0, spacing=2.0)
+
+
+def _stall(monkeypatch, limit):
+    """Make the check of the first path report any step beyond ``limit`` times its first
+    try 2 % too far; returns the list of ``(a.s, b.s, ratio)`` the check gave."""
+    real = family.pair_distances
+    calls = []
+
+    def stalled(a, b, closed=False):
+        d, ratio = real(a, b, closed)
+        s0, base = (calls[0][0], calls[0][1] - calls[0][0]) if calls else (a.s, b.s - a.s)
+        if a.s == s0 and b.s - a.s > limit * base * (1 + 1e-12):
+            ratio = max(ratio, 1.02)
+        calls.append((a.s, b.s, ratio))
+        return d, ratio
+
+    monkeypatch.setattr(family, "pair_distances", stalled)
+    return calls
+
+
+def _second_step(calls):
+    """The first path's first try and the step to where the second path lies."""
+    s0, base = calls[0][0], calls[0][1] - calls[0][0]
+    return s0, base, next(c[0] for c in calls if c[0] != s0) - s0
+
+
+@pytest.mark.parametrize("pattern", ["zigzag", "contour"])
+def test_a_stalled_check_is_bisected_to_the_largest_passing_step(cap, pattern, monkeypatch, caplog):
+    calls = _stall(monkeypatch, 0.6)
+    with caplog.at_level(logging.WARNING, logger="conformill"):
+        res = plan(cap, Job(pattern=pattern, tool_radius=4.0, scallop=0.01, tolerance=0.01))
+    assert "did not converge" not in caplog.text
+    s0, base, step = _second_step(calls)
+    assert sum(c[0] == s0 for c in calls) > 12  # the twelve shrinks did not clear it
+    # the largest passing step, to the bisection's precision (8 halvings of the last try)
+    assert 0.6 * base * (1 - 2.0 ** -7) <= step <= 0.6 * base * (1 + 1e-9)
+    assert any(c[:2] == (s0, s0 + step) and c[2] <= 1.0 + 1e-9 for c in calls)
+    assert res.report["paths"]["cl_points"] > 0
+
+
+def test_a_step_failing_down_to_a_small_fraction_is_halved_then_bisected(cap, monkeypatch):
+    calls = _stall(monkeypatch, 0.05)
+    plan(cap, Job(pattern="zigzag", tool_radius=4.0, scallop=0.01, tolerance=0.01))
+    _, base, step = _second_step(calls)
+    assert 0.05 * base * (1 - 2.0 ** -7) <= step <= 0.05 * base * (1 + 1e-9)
+
+
+def test_without_a_stall_the_bisection_is_not_entered(cap, monkeypatch):
+    """Where twelve shrinks suffice (every benchmark part at h = 0.01), the rows are the
+    same as before the bisection existed."""
+    entered = []
+    real = family.Planner._bisect_step
+    monkeypatch.setattr(family.Planner, "_bisect_step", lambda *a, **k: entered.append(1) or real(*a, **k))
+    plan(cap, Job(pattern="zigzag", tool_radius=4.0, scallop=0.01, tolerance=0.01))
+    assert not entered
+
+
+def test_local_spacing_bisects_a_stalled_check_too(cap, monkeypatch, caplog):
+    """``--spacing local`` (:meth:`Planner.run_local`) measures both ways at once; its
+    curves are profiles, so the stall is keyed on the lowest level."""
+    real = family.pair_distances_both
+    calls = []
+
+    def stalled(a, b, closed=False):
+        d_fwd, d_bwd = real(a, b, closed)
+        s0, base = (calls[0][0], calls[0][1] - calls[0][0]) if calls else (a.s, b.s - a.s)
+        calls.append((a.s, b.s))
+        if a.s == s0 and b.s - a.s > 0.6 * base * (1 + 1e-12):
+            d_fwd = np.maximum(d_fwd, 1.02 * a.ls)  # every sample 2 % too far
+        return d_fwd, d_bwd
+
+    monkeypatch.setattr(family, "pair_distances_both", stalled)
+    with caplog.at_level(logging.WARNING, logger="conformill"):
+        plan(cap, Job(pattern="zigzag", tool_radius=4.0, scallop=0.01, tolerance=0.01, spacing="local"))
+    assert "did not converge" not in caplog.text
+    s0, base = calls[0][0], calls[0][1] - calls[0][0]
+    assert sum(c[0] == s0 for c in calls) > 12
+    step = next(c[0] for c in calls if c[0] != s0) - s0
+    assert 0.5 * base <= step <= 0.6 * base * (1 + 1e-9)

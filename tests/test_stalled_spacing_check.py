@@ -23,20 +23,22 @@ def cap():
 
 
 def _stall(monkeypatch, limit):
-    """Make the check of the first path report any step beyond ``limit`` times its first
-    try 2 % too far; returns the list of ``(a.s, b.s, ratio)`` the check gave."""
-    real = family.pair_distances
+    """Make the check of the first path report every sample 2 % too far for any step
+    beyond ``limit`` times its first try (the step keyed on the new curve's lowest level);
+    returns the list of ``(a.s, b.s, ratio)`` the check gave. Both planners' checks go
+    through :func:`family.pair_distances_both`."""
+    real = family.pair_distances_both
     calls = []
 
     def stalled(a, b, closed=False):
-        d, ratio = real(a, b, closed)
+        d_fwd, d_bwd = real(a, b, closed)
         s0, base = (calls[0][0], calls[0][1] - calls[0][0]) if calls else (a.s, b.s - a.s)
         if a.s == s0 and b.s - a.s > limit * base * (1 + 1e-12):
-            ratio = max(ratio, 1.02)
-        calls.append((a.s, b.s, ratio))
-        return d, ratio
+            d_fwd = np.maximum(d_fwd, 1.02 * a.ls)
+        calls.append((a.s, b.s, max(np.max(d_fwd / a.ls), np.max(d_bwd / b.ls))))
+        return d_fwd, d_bwd
 
-    monkeypatch.setattr(family, "pair_distances", stalled)
+    monkeypatch.setattr(family, "pair_distances_both", stalled)
     return calls
 
 
@@ -78,24 +80,12 @@ def test_without_a_stall_the_bisection_is_not_entered(cap, monkeypatch):
 
 
 def test_local_spacing_bisects_a_stalled_check_too(cap, monkeypatch, caplog):
-    """``--spacing local`` (:meth:`Planner.run_local`) measures both ways at once; its
-    curves are profiles, so the stall is keyed on the lowest level."""
-    real = family.pair_distances_both
-    calls = []
-
-    def stalled(a, b, closed=False):
-        d_fwd, d_bwd = real(a, b, closed)
-        s0, base = (calls[0][0], calls[0][1] - calls[0][0]) if calls else (a.s, b.s - a.s)
-        calls.append((a.s, b.s))
-        if a.s == s0 and b.s - a.s > 0.6 * base * (1 + 1e-12):
-            d_fwd = np.maximum(d_fwd, 1.02 * a.ls)  # every sample 2 % too far
-        return d_fwd, d_bwd
-
-    monkeypatch.setattr(family, "pair_distances_both", stalled)
+    """``--spacing local`` (:meth:`Planner.run_local`): its curves are profiles, so the
+    stall is keyed on the lowest level."""
+    calls = _stall(monkeypatch, 0.6)
     with caplog.at_level(logging.WARNING, logger="conformill"):
         plan(cap, Job(pattern="zigzag", tool_radius=4.0, scallop=0.01, tolerance=0.01, spacing="local"))
     assert "did not converge" not in caplog.text
-    s0, base = calls[0][0], calls[0][1] - calls[0][0]
+    s0, base, step = _second_step(calls)
     assert sum(c[0] == s0 for c in calls) > 12
-    step = next(c[0] for c in calls if c[0] != s0) - s0
     assert 0.5 * base <= step <= 0.6 * base * (1 + 1e-9)

@@ -491,27 +491,29 @@ class Planner:
         fail; the largest passing fraction is taken. As ``g`` tends to 0 the new curve
         tends to the current one and the check passes.
 
-        Returns ``(g, curve, d_fwd, ratio)``; the check's warning is logged only if no
-        fraction passed.
+        Returns ``(level, curve, d_fwd, ratio)`` with ``level = level(g)`` as evaluated; the
+        check's warning is logged only if no fraction passed.
         """
         lo, hi, best = 0.0, 1.0, None
         g = 0.5
         for _ in range(halvings):
-            nxt = self.evaluate(family, level(g), tau=hint)
+            lev = level(g)
+            nxt = self.evaluate(family, lev, tau=hint)
             d_fwd, ratio = pair_distances(cur, nxt, family.closed)
             if ratio <= 1.0 + 1e-9:
-                lo, best = g, (g, nxt, d_fwd, ratio)
+                lo, best = g, (lev, nxt, d_fwd, ratio)
                 break
             hi, g = g, 0.5 * g
         else:
             log.warning("3D spacing check did not converge at offset %.6g (ratio %.3f)", cur.s, ratio)
-            return g, nxt, d_fwd, ratio
+            return lev, nxt, d_fwd, ratio
         for _ in range(rounds):
             g = 0.5 * (lo + hi)
-            nxt = self.evaluate(family, level(g), tau=hint)
+            lev = level(g)
+            nxt = self.evaluate(family, lev, tau=hint)
             d_fwd, ratio = pair_distances(cur, nxt, family.closed)
             if ratio <= 1.0 + 1e-9:
-                lo, best = g, (g, nxt, d_fwd, ratio)
+                lo, best = g, (lev, nxt, d_fwd, ratio)
             else:
                 hi = g
         return best
@@ -556,8 +558,8 @@ class Planner:
                 step = (s_next - cur.s) * min(0.995 / ratio, 0.999)
             else:
                 last = s_next - cur.s
-                g, nxt, d_fwd, ratio = self._bisect_step(family, cur, lambda g: min(cur.s + g * last, s_max), hint)
-                s_next = min(cur.s + g * last, s_max)
+                s_next, nxt, d_fwd, ratio = self._bisect_step(family, cur, lambda g: min(cur.s + g * last, s_max),
+                                                              hint)
             realised.append(d_fwd)
             predicted.append(cur.sample.area_factor() / cur.sample.length(cur.t) * cur.rate * (s_next - cur.s))
             curves.append(nxt)
@@ -665,9 +667,9 @@ class Planner:
                 T = profile(lv + (T - lv) * f)
             else:
                 T_last = T
-                g, nxt, d_fwd, ratio = self._bisect_step(
+                lev, nxt, d_fwd, ratio = self._bisect_step(
                     family, cur, lambda g: Levels(cur.tau, profile(lv + (T_last - lv) * g)), hint)
-                T = profile(lv + (T_last - lv) * g)
+                T = lev.s
             realised.append(d_fwd)
             predicted.append(cur.sample.area_factor() / cur.sample.length(cur.t) * cur.rate * (T - lv))
             curves.append(nxt)

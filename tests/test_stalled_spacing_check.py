@@ -1,10 +1,12 @@
-"""The 3D spacing check where its shrinks stall (patterns.family.Planner._bisect_step).
+"""The 3D spacing check where its shrinks stall (patterns.family.Planner._bisect_step, and
+the spiral's twin in patterns.spiral).
 
 A shrink scales the step by the ratio the check measured. Where the next path's own allowed
 interval shrinks as the path moves back, twelve shrinks could leave it still too far (the
 620k igea mesh, zigzag: ratio 1.016). Here the check is made to stall on purpose: for the
 first path, any step beyond a set fraction of the first try is reported 2 % too far, which
-the shrinks (at most 2.5 % each) cannot clear in twelve tries.
+the shrinks (at most 2.5 % each) cannot clear in twelve tries. The spiral tries 24 times
+(twelve shrinks of the next revolution's span, twelve of its own) before its fallback.
 """
 
 import logging
@@ -89,3 +91,60 @@ def test_local_spacing_bisects_a_stalled_check_too(cap, monkeypatch, caplog):
     s0, base, step = _second_step(calls)
     assert sum(c[0] == s0 for c in calls) > 12
     assert 0.5 * base <= step <= 0.6 * base * (1 + 1e-9)
+
+
+def _stall_spiral(monkeypatch, limit):
+    """The spiral's twin of :func:`_stall`: the check of the first revolution pair it
+    tries reports every sample 2 % too far for any ``E`` (the next revolution's span of
+    levels) beyond ``limit`` times the first ``E`` tried, whatever that revolution's own
+    replanned span. Returns the list of ``(a0, E, ratio)`` the check gave."""
+    from conformill.patterns import spiral
+    from conformill.patterns.domains import SpiralTurn
+
+    spans = {}  # id of an evaluated revolution -> (r0, r1)
+    real_eval = family.Planner.evaluate
+
+    def evaluate(self, fam, s, *a, **k):
+        c = real_eval(self, fam, s, *a, **k)
+        if isinstance(fam, SpiralTurn):
+            spans[id(c)] = (fam.r0, fam.r1)
+        return c
+
+    real = spiral.pair_distances
+    calls = []
+
+    def stalled(a, b, closed=False):
+        d_fwd, ratio = real(a, b, closed)
+        (a0, _), (b0, b1) = spans.get(id(a), (None, None)), spans.get(id(b), (None, None))
+        if a0 is None or b0 is None:  # the centre or the boundary turn: not stalled
+            return d_fwd, ratio
+        E = b1 - b0
+        if calls and a0 == calls[0][0] and E > limit * calls[0][1] * (1 + 1e-12):
+            d_fwd = np.maximum(d_fwd, 1.02 * a.ls)
+            ratio = max(ratio, float(np.max(d_fwd / a.ls)))
+        calls.append((a0, E, ratio))
+        return d_fwd, ratio
+
+    monkeypatch.setattr(family.Planner, "evaluate", evaluate)
+    monkeypatch.setattr(spiral, "pair_distances", stalled)
+    return calls
+
+
+def test_a_stalled_spiral_check_is_bisected_to_the_largest_passing_gap(cap, monkeypatch, caplog):
+    """24 failures (twelve shrinks of ``E``, twelve of ``D``) leave an untested ``E``; it is
+    halved, then bisected, to the largest that passes. Before, the spiral warned and took
+    that untested ``E`` (here 2 % too far by construction)."""
+    calls = _stall_spiral(monkeypatch, 0.05)
+    with caplog.at_level(logging.WARNING, logger="conformill"):
+        res = plan(cap, Job(pattern="spiral", tool_radius=4.0, scallop=0.01, tolerance=0.01))
+    assert "did not converge" not in caplog.text
+    a0, E0 = calls[0][0], calls[0][1]
+    first = [c for c in calls if c[0] == a0]
+    assert len(first) > 24  # the 24 tries failed, then the fallback
+    taken = first[-1]  # the bisection's last try may fail: the largest passing is taken
+    passing = [c for c in first if c[2] <= 1.0 + 1e-9]
+    assert passing
+    E = max(c[1] for c in passing)
+    assert 0.05 * E0 * (1 - 2.0 ** -6) <= E <= 0.05 * E0 * (1 + 1e-9)
+    assert taken[1] <= first[24][1] * (1 + 1e-12)
+    assert res.report["paths"]["cl_points"] > 0

@@ -73,6 +73,36 @@ def plan_spiral(planner, poly, delta: float, progress=None, adaptive: bool = Tru
             realised[-1], _ = pair_distances(turns[-2], turns[-1])
         return a0 + D, turns[-1]
 
+    def bisect_gap(cur, a1, E, halvings: int = 40, rounds: int = 8):
+        """The next revolution where 24 tries of the check failed (the twin of
+        :meth:`conformill.patterns.family.Planner._bisect_step`). The last try left an
+        untested ``E`` (and a revolution ``cur`` planned again closer): ``E`` is halved
+        until the check passes, then bisected ``rounds`` times between that and the
+        smallest fraction known to fail, and the largest passing one is taken. Returns
+        ``(next revolution, E, d_fwd)``, or ``None`` when no ``E`` above ``min_gap`` passes
+        (the fault is then in the part of ``cur`` that ``E`` cannot mend)."""
+        lo, hi, best, g = 0.0, None, None, 1.0
+        for _ in range(halvings):
+            if g * E <= min_gap:
+                return None
+            nxt = turn(a1, a1 + g * E)
+            d_fwd, ratio = pair_distances(cur, nxt)
+            if ratio <= TOL:
+                lo, best = g, (nxt, g * E, d_fwd)
+                break
+            hi, g = g, 0.5 * g
+        if best is None or hi is None:  # none passed, or the first (untested) E passed
+            return best
+        for _ in range(rounds):
+            g = 0.5 * (lo + hi)
+            nxt = turn(a1, a1 + g * E)
+            d_fwd, ratio = pair_distances(cur, nxt)
+            if ratio <= TOL:
+                lo, best = g, (nxt, g * E, d_fwd)
+            else:
+                hi = g
+        return best
+
     stream = PieceStream(emit)
     centre = planner.evaluate(rings, 0.0)
     D = min(float(np.min(planner.domain_steps(centre))), s_end)
@@ -138,7 +168,11 @@ def plan_spiral(planner, poly, delta: float, progress=None, adaptive: bool = Tru
                 E = min(max(_next_gap(trust * planner.domain_steps(cur), cur.tau, D), 0.0), s_end - a1)
             nxt = None
         else:
-            log.warning("spiral spacing check did not converge at offset %.6g (ratio %.3f)", a1, ratio)
+            found = bisect_gap(cur, a1, E)
+            if found is None:
+                log.warning("spiral spacing check did not converge at offset %.6g (ratio %.3f)", a1, ratio)
+            else:
+                nxt, E, d_fwd = found
         if nxt is None:  # E collapsed: step at least a little
             E = max(E, min_gap)
             nxt = turn(a1, min(a1 + E, s_end))

@@ -111,6 +111,28 @@ def test_the_fast_ordering_gives_the_nested_dissection_solution(kind):
 
 
 @pytest.mark.skipif(not S.have_pardiso(), reason="MKL Pardiso not available")
+def test_an_mkl_refusing_the_fast_settings_gets_its_defaults(monkeypatch):
+    """``PARDISO_FAST`` relies on how MKL 2026.2 reads ``2: 0`` under the two-level
+    factorization; an MKL that returns an error for it is asked again with its defaults."""
+    W, interior, loop, uv_b = _system()
+    A, WB = S._split(W, interior, loop)
+    rhs = WB @ uv_b
+    real = S._Pardiso._call
+    tried = []
+
+    def call(self, phase, b=None, x=None):
+        tried.append(int(self.iparm[1]))
+        if phase == 12 and self.iparm[23] == 1:
+            raise RuntimeError(f"MKL Pardiso phase {phase} failed with error -1")
+        return real(self, phase, b, x)
+
+    monkeypatch.setattr(S._Pardiso, "_call", call)
+    X = S.solve_linear(A, rhs, "pardiso")
+    assert S._relative_residual(A, X, rhs) < 1e-12
+    assert tried[0] == 0 and 2 in tried[1:]  # the fast settings, then MKL's defaults
+
+
+@pytest.mark.skipif(not S.have_pardiso(), reason="MKL Pardiso not available")
 def test_pardiso_rejects_an_empty_row():
     A = S.CSR(np.array([0, 1, 1]), np.array([0]), np.array([1.0]), (2, 2))
     with pytest.raises(ValueError, match="empty row"):

@@ -205,7 +205,10 @@ class _Pardiso:
     def free(self) -> None:
         if self.active:
             self.active = False
-            self._call(-1)
+            try:
+                self._call(-1)
+            except RuntimeError as exc:  # after a failed phase: the error raised is that one
+                log.debug("pardiso: release failed (%s)", exc)
 
 
 #: below this many unknowns SuperLU wins: loading MKL alone costs about a second
@@ -390,6 +393,11 @@ def solve_linear(A, rhs: np.ndarray, solver: str):
             try:
                 ps.factorize()
                 X = ps.solve(rhs).reshape(rhs.shape)
+            except RuntimeError as exc:  # an MKL that refuses the fast settings: its defaults
+                if not iparm:
+                    raise
+                log.info("pardiso refused the fast settings (%s); retrying with defaults", exc)
+                continue
             finally:
                 ps.free()
             # the fast settings skip scaling and matching, safe for the M-matrices of positive

@@ -42,7 +42,7 @@ SOLVERS = ("pardiso", "superlu", "gmres_ilu")
 #: one, ``2: 3``, would rule out reproducible results): the same factor sizes and the same
 #: solution bits on igea and on the 620k-face mesh with every weight and boundary (session
 #: 41), but an analysis a third quicker (0.60 against 0.93 s on the 620k mesh's 308531
-#: unknowns; igea's map 0.44 -> 0.33 s). ``tests/test_param_solvers.py`` holds the two to
+#: unknowns; igea's map 0.44 -> 0.33 s). ``tests/test_param_solve.py`` holds the two to
 #: the same solution.
 PARDISO_FAST = {1: 1, 2: 0, 8: 0, 10: 13, 11: 0, 13: 0, 24: 1}
 

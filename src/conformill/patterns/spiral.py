@@ -73,32 +73,37 @@ def plan_spiral(planner, poly, delta: float, progress=None, adaptive: bool = Tru
             realised[-1], _ = pair_distances(turns[-2], turns[-1])
         return a0 + D, turns[-1]
 
-    def bisect_gap(cur, a1, E, halvings: int = 40, rounds: int = 8):
-        """The next revolution where 24 tries of the check failed (the twin of
-        :meth:`conformill.patterns.family.Planner._bisect_step`). The last try left an
-        untested ``E`` (and a revolution ``cur`` planned again closer): ``E`` is halved
-        until the check passes, then bisected ``rounds`` times between that and the
-        smallest fraction known to fail, and the largest passing one is taken. Returns
-        ``(next revolution, E, d_fwd)``, or ``None`` when no ``E`` above ``min_gap`` passes
-        (the fault is then in the part of ``cur`` that ``E`` cannot mend)."""
-        lo, hi, best, g = 0.0, None, None, 1.0
-        for _ in range(halvings):
-            if g * E <= min_gap:
-                return None
+    def bisect_gap(cur, a1, E, rounds: int = 8):
+        """The next revolution where 24 tries of the check failed.
+
+        The twin of :meth:`conformill.patterns.family.Planner._bisect_step`. The last try
+        left an untested ``E`` (and a revolution ``cur`` planned again closer): ``E`` is
+        halved until the check passes, then bisected ``rounds`` times between that and
+        the smallest fraction known to fail, and the largest passing one is taken.
+        Returns ``(next revolution, E, d_fwd, ratio, passed)``; where no ``E`` above
+        ``min_gap`` passes (the fault is then in the part of ``cur`` that ``E`` cannot
+        mend), the revolution tried with the lowest ratio (the smaller ``E`` of equals),
+        ``passed`` False; ``None``
+        when ``E`` itself is not above ``min_gap``.
+        """
+        lo, hi, best, worst_ok, g = 0.0, None, None, None, 1.0
+        while g * E > min_gap:  # at most about 24 halvings: E <= s_end = 1e7 min_gap
             nxt = turn(a1, a1 + g * E)
             d_fwd, ratio = pair_distances(cur, nxt)
             if ratio <= TOL:
-                lo, best = g, (nxt, g * E, d_fwd)
+                lo, best = g, (nxt, g * E, d_fwd, ratio, True)
                 break
+            if worst_ok is None or ratio <= worst_ok[3]:  # ties: the smaller E
+                worst_ok = (nxt, g * E, d_fwd, ratio, False)
             hi, g = g, 0.5 * g
         if best is None or hi is None:  # none passed, or the first (untested) E passed
-            return best
+            return best or worst_ok
         for _ in range(rounds):
             g = 0.5 * (lo + hi)
             nxt = turn(a1, a1 + g * E)
             d_fwd, ratio = pair_distances(cur, nxt)
             if ratio <= TOL:
-                lo, best = g, (nxt, g * E, d_fwd)
+                lo, best = g, (nxt, g * E, d_fwd, ratio, True)
             else:
                 hi = g
         return best
@@ -172,7 +177,9 @@ def plan_spiral(planner, poly, delta: float, progress=None, adaptive: bool = Tru
             if found is None:
                 log.warning("spiral spacing check did not converge at offset %.6g (ratio %.3f)", a1, ratio)
             else:
-                nxt, E, d_fwd = found
+                nxt, E, d_fwd, ratio, passed = found
+                if not passed:  # the fault is in the part of cur that E cannot mend
+                    log.warning("spiral spacing check did not converge at offset %.6g (ratio %.3f)", a1, ratio)
         if nxt is None:  # E collapsed: step at least a little
             E = max(E, min_gap)
             nxt = turn(a1, min(a1 + E, s_end))

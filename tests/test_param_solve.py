@@ -91,10 +91,11 @@ def test_pardiso_ctypes_matches_superlu(iparm):
 @pytest.mark.skipif(not S.have_pardiso(), reason="MKL Pardiso not available")
 @pytest.mark.parametrize("kind", ["geodesic", "cotangent", "mean_value"])
 def test_the_fast_ordering_gives_the_nested_dissection_solution(kind):
-    """``PARDISO_FAST`` leaves the ordering to MKL (``2: 0``); with the two-level
-    factorization MKL then uses its nested dissection, as with ``2: 2``, only its analysis
-    is quicker (session 41). Measured on MKL 2026.2: the same bits. Held here to the same
-    solution within rounding, so that another MKL whose ordering differs still passes."""
+    """``PARDISO_FAST`` sets the ordering ``2: 0`` (documented as minimum degree, and as
+    unsupported with the two-level factorization); MKL 2026.2 then uses its nested
+    dissection, as with ``2: 2``, only its analysis is quicker (session 41): the same bits.
+    Held here to the same solution within rounding, so that another MKL whose ordering
+    differs still passes."""
     W, interior, loop, uv_b = _system(kind)
     A, WB = S._split(W, interior, loop)
     rhs = WB @ uv_b
@@ -111,9 +112,12 @@ def test_the_fast_ordering_gives_the_nested_dissection_solution(kind):
 
 
 @pytest.mark.skipif(not S.have_pardiso(), reason="MKL Pardiso not available")
-def test_an_mkl_refusing_the_fast_settings_gets_its_defaults(monkeypatch):
-    """``PARDISO_FAST`` relies on how MKL 2026.2 reads ``2: 0`` under the two-level
-    factorization; an MKL that returns an error for it is asked again with its defaults."""
+@pytest.mark.parametrize("refused, used", [("ordering 0", (2, 1)), ("two-level", (2, 0))])
+def test_an_mkl_refusing_the_fast_settings_is_asked_again(monkeypatch, refused, used):
+    """``PARDISO_FAST`` relies on how MKL 2026.2 reads the ordering ``2: 0`` under the
+    two-level factorization (documented as unsupported). An MKL that returns an error for it
+    is asked with the documented ``2: 2``; one that refuses the two-level factorization too
+    gets its defaults. ``used``: the (ordering, two-level) of the settings that solved."""
     W, interior, loop, uv_b = _system()
     A, WB = S._split(W, interior, loop)
     rhs = WB @ uv_b
@@ -121,15 +125,17 @@ def test_an_mkl_refusing_the_fast_settings_gets_its_defaults(monkeypatch):
     tried = []
 
     def call(self, phase, b=None, x=None):
-        tried.append(int(self.iparm[1]))
-        if phase == 12 and self.iparm[23] == 1:
-            raise RuntimeError(f"MKL Pardiso phase {phase} failed with error -1")
+        key = (int(self.iparm[1]), int(self.iparm[23]))
+        if phase == 12:
+            tried.append(key)
+            if key[1] == 1 and (key[0] == 0 or refused == "two-level"):
+                raise RuntimeError(f"MKL Pardiso phase {phase} failed with error -1")
         return real(self, phase, b, x)
 
     monkeypatch.setattr(S._Pardiso, "_call", call)
     X = S.solve_linear(A, rhs, "pardiso")
     assert S._relative_residual(A, X, rhs) < 1e-12
-    assert tried[0] == 0 and 2 in tried[1:]  # the fast settings, then MKL's defaults
+    assert tried[0] == (0, 1) and tried[-1] == used and len(tried) == (2 if used[1] else 3)
 
 
 @pytest.mark.skipif(not S.have_pardiso(), reason="MKL Pardiso not available")
@@ -158,9 +164,9 @@ def test_pardiso_runs_in_the_reproducible_mode():
     # threads: MKL's conditional numerical reproducibility, so that the programs do not
     # depend on the machine's load
     A = S.CSR(np.array([0, 2, 4]), np.array([0, 1, 0, 1]), np.array([4.0, -1.0, -1.0, 4.0]), (2, 2))
-    for iparm in (S.PARDISO_FAST, {}, {**S.PARDISO_FAST, 2: 3}):
+    for iparm, order in ((S.PARDISO_FAST, 0), ({}, 2), ({**S.PARDISO_FAST, 2: 3}, 2)):
         ps = S._Pardiso(A, iparm)
-        assert ps.iparm[1] in (0, 2) and ps.iparm[33] == S.pardiso_threads() >= 1
+        assert ps.iparm[1] == order and ps.iparm[33] == S.pardiso_threads() >= 1
         ps.factorize()
         x = ps.solve(np.array([3.0, 3.0]))
         ps.free()

@@ -37,13 +37,14 @@ SOLVERS = ("pardiso", "superlu", "gmres_ilu")
 #: MKL Pardiso iparm (1-based) tried first: user settings on, the ordering (below), no
 #: iterative refinement, pivot perturbation 1e-13, no scaling or weighted matching, two-level
 #: parallel factorization. Every solve also sets iparm[34] (reproducibility with a fixed
-#: thread count). The ordering: the two-level factorization allows only nested dissection,
-#: and with ``2: 0`` MKL (2026.2) uses the same one as with ``2: 2`` (METIS; the parallel
-#: one, ``2: 3``, would rule out reproducible results): the same factor sizes and the same
-#: solution bits on igea and on the 620k-face mesh with every weight and boundary (session
-#: 41), but an analysis a third quicker (0.60 against 0.93 s on the 620k mesh's 308531
-#: unknowns; igea's map 0.44 -> 0.33 s). ``tests/test_param_solve.py`` holds the two to
-#: the same solution.
+#: thread count). The ordering ``2: 0`` is documented as minimum degree and as unsupported
+#: with the two-level factorization, which allows only nested dissection (``2: 2``, METIS;
+#: the parallel one, ``2: 3``, would rule out reproducible results). MKL 2026.2 then uses
+#: its nested dissection anyway: the same memory figures (iparm 15-17) and the same solution
+#: bits as ``2: 2`` on igea and on the 620k-face mesh with every weight and boundary
+#: (session 41), but an analysis a third quicker (0.60 against 0.93 s on the 620k mesh's
+#: 308531 unknowns; igea's map 0.44 -> 0.33 s). ``tests/test_param_solve.py`` holds the two
+#: to the same solution; an MKL that refuses ``2: 0`` gets ``2: 2`` (:func:`solve_linear`).
 PARDISO_FAST = {1: 1, 2: 0, 8: 0, 10: 13, 11: 0, 13: 0, 24: 1}
 
 
@@ -202,13 +203,17 @@ class _Pardiso:
         self._call(33, b, x)
         return np.ascontiguousarray(x)
 
-    def free(self) -> None:
+    def free(self, quiet: bool = False) -> None:
+        """Release MKL's memory; ``quiet``: a failure to do so is logged, not raised (after
+        a failed phase, whose error is the one to raise)."""
         if self.active:
             self.active = False
             try:
                 self._call(-1)
-            except RuntimeError as exc:  # after a failed phase: the error raised is that one
-                log.debug("pardiso: release failed (%s)", exc)
+            except RuntimeError as exc:
+                if not quiet:
+                    raise
+                log.debug("pardiso: release after a failed phase failed too (%s)", exc)
 
 
 #: below this many unknowns SuperLU wins: loading MKL alone costs about a second
@@ -388,22 +393,32 @@ def solve_linear(A, rhs: np.ndarray, solver: str):
         A = _as_csr(A)
         if np.any(np.diff(A.indptr) == 0):
             raise ValueError("the matrix has an empty row (singular)")
-        for iparm in (PARDISO_FAST, {}):
+        # the fast settings; where MKL refuses them (an error), the same with the ordering
+        # it documents for the two-level factorization (2: 2, METIS); where a fast solve
+        # misses the residual, MKL's defaults (scaling and matching)
+        tries = [PARDISO_FAST, {**PARDISO_FAST, 2: 2}, {}]
+        k = 0
+        while True:
+            iparm = tries[k]
             ps = _Pardiso(A, iparm)
+            ok = False
             try:
                 ps.factorize()
                 X = ps.solve(rhs).reshape(rhs.shape)
-            except RuntimeError as exc:  # an MKL that refuses the fast settings: its defaults
+                ok = True
+            except RuntimeError as exc:
                 if not iparm:
                     raise
-                log.info("pardiso refused the fast settings (%s); retrying with defaults", exc)
+                log.info("pardiso failed with %s (%s); trying %s", iparm, exc, tries[k + 1] or "MKL's defaults")
+                k += 1
                 continue
             finally:
-                ps.free()
+                ps.free(quiet=not ok)  # after a failed phase, the error that counts is that phase's
             # the fast settings skip scaling and matching, safe for the M-matrices of positive
             # weights; anything else (cotangent weights on bad triangles) retries MKL's defaults
             if iparm and _relative_residual(A, X, rhs) > MAX_RESIDUAL:
                 log.info("pardiso without scaling/matching missed the residual; retrying with defaults")
+                k = len(tries) - 1
                 continue
             return X
     if solver in ("superlu", "gmres_ilu"):

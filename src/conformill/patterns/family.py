@@ -265,6 +265,45 @@ def pair_distances(a, b, closed: bool = False):
     return d_fwd, max(np.max(d_fwd / a.ls), np.max(d_bwd / b.ls))
 
 
+def halve_then_bisect(attempt, g: float, failing: float | None = None, g_min: float = 0.0,
+                      halvings: int = 40, rounds: int = 8):
+    """The largest fraction of a step that passes the 3D spacing check, where its shrinks stalled.
+
+    ``attempt(g)`` evaluates the step's fraction ``g`` and returns ``(ratio, result)``; the
+    check passes at ``ratio <= 1 + 1e-9``. ``g`` is halved from the value given until a
+    fraction passes (at most ``halvings`` tries, none at or below ``g_min``), then bisected
+    ``rounds`` times between the largest passing fraction and the smallest known to fail
+    (``failing``, a fraction that failed before the call, or the halvings' last failure;
+    none when the first fraction tried passes and nothing is known to fail).
+
+    Returns
+    -------
+    best : object or None
+        The ``result`` of the largest passing fraction; None when none passed.
+    failed : list of (ratio, g, result)
+        The halvings that failed, in order.
+    """
+    lo, hi, best, failed = 0.0, failing, None, []
+    for _ in range(halvings):
+        if g <= g_min:
+            break
+        ratio, res = attempt(g)
+        if ratio <= 1.0 + 1e-9:
+            lo, best = g, res
+            break
+        failed.append((ratio, g, res))
+        hi, g = g, 0.5 * g
+    if best is not None and hi is not None:
+        for _ in range(rounds):
+            g = 0.5 * (lo + hi)
+            ratio, res = attempt(g)
+            if ratio <= 1.0 + 1e-9:
+                lo, best = g, res
+            else:
+                hi = g
+    return best, failed
+
+
 @njit(cache=True, nogil=True)
 def _sweep(E, seg, k, closed, reverse):
     """One pass of :func:`_envelope` along the gaps (backwards with ``reverse``), in place."""
@@ -494,28 +533,16 @@ class Planner:
         Returns ``(level, curve, d_fwd, ratio)`` with ``level = level(g)`` as evaluated; the
         check's warning is logged only if no fraction passed.
         """
-        lo, hi, best = 0.0, 1.0, None
-        g = 0.5
-        for _ in range(halvings):
+        def attempt(g):
             lev = level(g)
             nxt = self.evaluate(family, lev, tau=hint)
             d_fwd, ratio = pair_distances(cur, nxt, family.closed)
-            if ratio <= 1.0 + 1e-9:
-                lo, best = g, (lev, nxt, d_fwd, ratio)
-                break
-            hi, g = g, 0.5 * g
-        else:
-            log.warning("3D spacing check did not converge at offset %.6g (ratio %.3f)", cur.s, ratio)
-            return lev, nxt, d_fwd, ratio
-        for _ in range(rounds):
-            g = 0.5 * (lo + hi)
-            lev = level(g)
-            nxt = self.evaluate(family, lev, tau=hint)
-            d_fwd, ratio = pair_distances(cur, nxt, family.closed)
-            if ratio <= 1.0 + 1e-9:
-                lo, best = g, (lev, nxt, d_fwd, ratio)
-            else:
-                hi = g
+            return ratio, (lev, nxt, d_fwd, ratio)
+
+        best, failed = halve_then_bisect(attempt, 0.5, failing=1.0, halvings=halvings, rounds=rounds)
+        if best is None:  # (the last fraction tried is returned)
+            log.warning("3D spacing check did not converge at offset %.6g (ratio %.3f)", cur.s, failed[-1][0])
+            return failed[-1][2]
         return best
 
     def run(self, family: Family, s0: float, s_max: float, max_paths: int = 200000, progress=None,

@@ -25,7 +25,7 @@ import numpy as np
 
 from conformill.errors import PlanningError
 from conformill.patterns.domains import Rings, SpiralTurn
-from conformill.patterns.family import pair_distances
+from conformill.patterns.family import halve_then_bisect, pair_distances
 from conformill.patterns.pieces import Piece, PieceStream, domain_paths
 from conformill.patterns.warp import build_warp
 
@@ -72,41 +72,6 @@ def plan_spiral(planner, poly, delta: float, progress=None, adaptive: bool = Tru
         if realised:
             realised[-1], _ = pair_distances(turns[-2], turns[-1])
         return a0 + D, turns[-1]
-
-    def bisect_gap(cur, a1, E, rounds: int = 8):
-        """The next revolution where 24 tries of the check failed.
-
-        The twin of :meth:`conformill.patterns.family.Planner._bisect_step`. The last try
-        left an untested ``E`` (and a revolution ``cur`` planned again closer): ``E`` is
-        halved until the check passes, then bisected ``rounds`` times between that and
-        the smallest fraction known to fail, and the largest passing one is taken.
-        Returns ``(next revolution, E, d_fwd, ratio, passed)``; where no ``E`` above
-        ``min_gap`` passes (the fault is then in the part of ``cur`` that ``E`` cannot
-        mend), the revolution tried with the lowest ratio (the smaller ``E`` of equals),
-        ``passed`` False; ``None``
-        when ``E`` itself is not above ``min_gap``.
-        """
-        lo, hi, best, worst_ok, g = 0.0, None, None, None, 1.0
-        while g * E > min_gap:  # at most about 24 halvings: E <= s_end = 1e7 min_gap
-            nxt = turn(a1, a1 + g * E)
-            d_fwd, ratio = pair_distances(cur, nxt)
-            if ratio <= TOL:
-                lo, best = g, (nxt, g * E, d_fwd, ratio, True)
-                break
-            if worst_ok is None or ratio <= worst_ok[3]:  # ties: the smaller E
-                worst_ok = (nxt, g * E, d_fwd, ratio, False)
-            hi, g = g, 0.5 * g
-        if best is None or hi is None:  # none passed, or the first (untested) E passed
-            return best or worst_ok
-        for _ in range(rounds):
-            g = 0.5 * (lo + hi)
-            nxt = turn(a1, a1 + g * E)
-            d_fwd, ratio = pair_distances(cur, nxt)
-            if ratio <= TOL:
-                lo, best = g, (nxt, g * E, d_fwd, ratio, True)
-            else:
-                hi = g
-        return best
 
     stream = PieceStream(emit)
     centre = planner.evaluate(rings, 0.0)
@@ -173,13 +138,23 @@ def plan_spiral(planner, poly, delta: float, progress=None, adaptive: bool = Tru
                 E = min(max(_next_gap(trust * planner.domain_steps(cur), cur.tau, D), 0.0), s_end - a1)
             nxt = None
         else:
-            found = bisect_gap(cur, a1, E)
-            if found is None:
+            # the last try left an untested E (and cur planned again closer): halved until the
+            # check passes, then bisected to the largest that passes (as in the other
+            # patterns' Planner._bisect_step); where none above min_gap passes, the fault is
+            # in the part of cur that E cannot mend: the least bad revolution tried (of equal
+            # ratios the smaller E), with the warning
+            def attempt(g, cur=cur, a1=a1, E=E):
+                nxt = turn(a1, a1 + g * E)
+                d_fwd, ratio = pair_distances(cur, nxt)
+                return ratio, (nxt, g * E, d_fwd, ratio)
+
+            best, failed = halve_then_bisect(attempt, 1.0, g_min=min_gap / E if E > 0 else np.inf)
+            if best is None and failed:
+                best = min(failed, key=lambda f: (f[0], f[1]))[2]
+            if best is not None:
+                nxt, E, d_fwd, ratio = best
+            if best is None or ratio > TOL:
                 log.warning("spiral spacing check did not converge at offset %.6g (ratio %.3f)", a1, ratio)
-            else:
-                nxt, E, d_fwd, ratio, passed = found
-                if not passed:  # the fault is in the part of cur that E cannot mend
-                    log.warning("spiral spacing check did not converge at offset %.6g (ratio %.3f)", a1, ratio)
         if nxt is None:  # E collapsed: step at least a little
             E = max(E, min_gap)
             nxt = turn(a1, min(a1 + E, s_end))

@@ -139,6 +139,32 @@ def test_an_mkl_refusing_the_fast_settings_is_asked_again(monkeypatch, refused, 
 
 
 @pytest.mark.skipif(not S.have_pardiso(), reason="MKL Pardiso not available")
+def test_a_fast_solve_missing_the_residual_goes_to_the_defaults(monkeypatch):
+    """Without scaling and matching a solve may miss the residual (cotangent weights on bad
+    triangles): MKL's defaults are asked next, not the fast settings with another ordering."""
+    W, interior, loop, uv_b = _system()
+    A, WB = S._split(W, interior, loop)
+    rhs = WB @ uv_b
+    real_call, real_res = S._Pardiso._call, S._relative_residual
+    tried, checked = [], []
+
+    def call(self, phase, b=None, x=None):
+        if phase == 12:
+            tried.append((int(self.iparm[1]), int(self.iparm[23])))
+        return real_call(self, phase, b, x)
+
+    def residual(A_, X_, rhs_):
+        checked.append(1)
+        return 1.0 if len(checked) == 1 else real_res(A_, X_, rhs_)
+
+    monkeypatch.setattr(S._Pardiso, "_call", call)
+    monkeypatch.setattr(S, "_relative_residual", residual)
+    X = S.solve_linear(A, rhs, "pardiso")
+    assert tried == [(0, 1), (2, 0)]  # the fast settings, then MKL's defaults (one-level)
+    assert real_res(A, X, rhs) < 1e-12
+
+
+@pytest.mark.skipif(not S.have_pardiso(), reason="MKL Pardiso not available")
 def test_pardiso_rejects_an_empty_row():
     A = S.CSR(np.array([0, 1, 1]), np.array([0]), np.array([1.0]), (2, 2))
     with pytest.raises(ValueError, match="empty row"):

@@ -396,10 +396,10 @@ def solve_linear(A, rhs: np.ndarray, solver: str):
         # the fast settings; where MKL refuses them (an error), the same with the ordering
         # it documents for the two-level factorization (2: 2, METIS); where a fast solve
         # misses the residual, MKL's defaults (scaling and matching)
-        tries = [PARDISO_FAST, {**PARDISO_FAST, 2: 2}, {}]
-        k = 0
-        while True:
-            iparm = tries[k]
+        defaults_only = False
+        for iparm in (PARDISO_FAST, {**PARDISO_FAST, 2: 2}, {}):
+            if iparm and defaults_only:
+                continue
             ps = _Pardiso(A, iparm)
             ok = False
             try:
@@ -409,8 +409,7 @@ def solve_linear(A, rhs: np.ndarray, solver: str):
             except RuntimeError as exc:
                 if not iparm:
                     raise
-                log.info("pardiso failed with %s (%s); trying %s", iparm, exc, tries[k + 1] or "MKL's defaults")
-                k += 1
+                log.info("pardiso failed with %s (%s); trying the next settings", iparm, exc)
                 continue
             finally:
                 ps.free(quiet=not ok)  # after a failed phase, the error that counts is that phase's
@@ -418,7 +417,7 @@ def solve_linear(A, rhs: np.ndarray, solver: str):
             # weights; anything else (cotangent weights on bad triangles) retries MKL's defaults
             if iparm and _relative_residual(A, X, rhs) > MAX_RESIDUAL:
                 log.info("pardiso without scaling/matching missed the residual; retrying with defaults")
-                k = len(tries) - 1
+                defaults_only = True
                 continue
             return X
     if solver in ("superlu", "gmres_ilu"):

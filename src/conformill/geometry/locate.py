@@ -67,77 +67,70 @@ def _closest_on_segment(px, py, ax, ay, bx, by):
     return (px - qx) * (px - qx) + (py - qy) * (py - qy), t
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _locate_one(px, py, uv, F, ptr, items, lo, inv_cell, nx, ny, tol2):
+    """Face and barycentrics of one point, ``(face, b0, b1, b2)``: ``(-1, nan, nan, nan)``
+    outside the domain (see :meth:`Locator.locate`)."""
+    if not (np.isfinite(px) and np.isfinite(py)):
+        return -1, np.nan, np.nan, np.nan
+    fi = (px - lo[0]) * inv_cell
+    fj = (py - lo[1]) * inv_cell
+    if fi < 0.0 or fj < 0.0 or fi >= nx or fj >= ny:
+        return -1, np.nan, np.nan, np.nan
+    c = int(fj) * nx + int(fi)
+    for t in range(ptr[c], ptr[c + 1]):
+        f = items[t]
+        a, b, cc = F[f, 0], F[f, 1], F[f, 2]
+        ax, ay = uv[a, 0], uv[a, 1]
+        bx, by = uv[b, 0], uv[b, 1]
+        cx, cy = uv[cc, 0], uv[cc, 1]
+        # signed sub-areas: b_k = area opposite corner k / total
+        w0 = (bx - px) * (cy - py) - (by - py) * (cx - px)
+        w1 = (cx - px) * (ay - py) - (cy - py) * (ax - px)
+        w2 = (ax - px) * (by - py) - (ay - py) * (bx - px)
+        s = w0 + w1 + w2
+        if s == 0.0:
+            continue
+        if s < 0.0:
+            w0, w1, w2, s = -w0, -w1, -w2, -s
+        if w0 >= 0.0 and w1 >= 0.0 and w2 >= 0.0:
+            return f, w0 / s, w1 / s, w2 / s
+    # not inside any face (outside, or on an edge up to rounding): nearest face if
+    # within tol, with the barycentrics of its nearest point
+    best_d = np.inf
+    best_f = -1
+    best_b0 = 0.0
+    best_b1 = 0.0
+    best_b2 = 0.0
+    for t in range(ptr[c], ptr[c + 1]):
+        f = items[t]
+        a, b, cc = F[f, 0], F[f, 1], F[f, 2]
+        ax, ay = uv[a, 0], uv[a, 1]
+        bx, by = uv[b, 0], uv[b, 1]
+        cx, cy = uv[cc, 0], uv[cc, 1]
+        d0, t0 = _closest_on_segment(px, py, ax, ay, bx, by)
+        d1, t1 = _closest_on_segment(px, py, bx, by, cx, cy)
+        d2, t2 = _closest_on_segment(px, py, cx, cy, ax, ay)
+        if d0 <= d1 and d0 <= d2:
+            d, e0, e1, e2 = d0, 1.0 - t0, t0, 0.0
+        elif d1 <= d2:
+            d, e0, e1, e2 = d1, 0.0, 1.0 - t1, t1
+        else:
+            d, e0, e1, e2 = d2, t2, 0.0, 1.0 - t2
+        if d < best_d:
+            best_d, best_f, best_b0, best_b1, best_b2 = d, f, e0, e1, e2
+    if best_f >= 0 and best_d <= tol2:
+        return best_f, best_b0, best_b1, best_b2
+    return -1, np.nan, np.nan, np.nan
+
+
 @njit(cache=True, nogil=True, parallel=True)
 def _query(P, uv, F, ptr, items, lo, inv_cell, nx, ny, tol, face, bary):
     k = P.shape[0]
     tol2 = tol * tol
     for q in prange(k):
-        px, py = P[q, 0], P[q, 1]
-        face[q] = -1
-        bary[q, 0] = np.nan
-        bary[q, 1] = np.nan
-        bary[q, 2] = np.nan
-        if not (np.isfinite(px) and np.isfinite(py)):
-            continue
-        fi = (px - lo[0]) * inv_cell
-        fj = (py - lo[1]) * inv_cell
-        if fi < 0.0 or fj < 0.0 or fi >= nx or fj >= ny:
-            continue
-        c = int(fj) * nx + int(fi)
-        found = False
-        for t in range(ptr[c], ptr[c + 1]):
-            f = items[t]
-            a, b, cc = F[f, 0], F[f, 1], F[f, 2]
-            ax, ay = uv[a, 0], uv[a, 1]
-            bx, by = uv[b, 0], uv[b, 1]
-            cx, cy = uv[cc, 0], uv[cc, 1]
-            # signed sub-areas: b_k = area opposite corner k / total
-            w0 = (bx - px) * (cy - py) - (by - py) * (cx - px)
-            w1 = (cx - px) * (ay - py) - (cy - py) * (ax - px)
-            w2 = (ax - px) * (by - py) - (ay - py) * (bx - px)
-            s = w0 + w1 + w2
-            if s == 0.0:
-                continue
-            if s < 0.0:
-                w0, w1, w2, s = -w0, -w1, -w2, -s
-            if w0 >= 0.0 and w1 >= 0.0 and w2 >= 0.0:
-                face[q] = f
-                bary[q, 0] = w0 / s
-                bary[q, 1] = w1 / s
-                bary[q, 2] = w2 / s
-                found = True
-                break
-        if found:
-            continue
-        # not inside any face (outside, or on an edge up to rounding): nearest face if
-        # within tol, with the barycentrics of its nearest point
-        best_d = np.inf
-        best_f = -1
-        best_b0 = 0.0
-        best_b1 = 0.0
-        best_b2 = 0.0
-        for t in range(ptr[c], ptr[c + 1]):
-            f = items[t]
-            a, b, cc = F[f, 0], F[f, 1], F[f, 2]
-            ax, ay = uv[a, 0], uv[a, 1]
-            bx, by = uv[b, 0], uv[b, 1]
-            cx, cy = uv[cc, 0], uv[cc, 1]
-            d0, t0 = _closest_on_segment(px, py, ax, ay, bx, by)
-            d1, t1 = _closest_on_segment(px, py, bx, by, cx, cy)
-            d2, t2 = _closest_on_segment(px, py, cx, cy, ax, ay)
-            if d0 <= d1 and d0 <= d2:
-                d, e0, e1, e2 = d0, 1.0 - t0, t0, 0.0
-            elif d1 <= d2:
-                d, e0, e1, e2 = d1, 0.0, 1.0 - t1, t1
-            else:
-                d, e0, e1, e2 = d2, t2, 0.0, 1.0 - t2
-            if d < best_d:
-                best_d, best_f, best_b0, best_b1, best_b2 = d, f, e0, e1, e2
-        if best_f >= 0 and best_d <= tol2:
-            face[q] = best_f
-            bary[q, 0] = best_b0
-            bary[q, 1] = best_b1
-            bary[q, 2] = best_b2
+        face[q], bary[q, 0], bary[q, 1], bary[q, 2] = _locate_one(P[q, 0], P[q, 1], uv, F, ptr, items, lo,
+                                                                  inv_cell, nx, ny, tol2)
 
 
 class Locator:

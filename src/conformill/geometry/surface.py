@@ -7,10 +7,16 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit, prange
 
 from conformill.errors import PlanningError
-from conformill.geometry.differential import interpolate, normal_curvature, perpendicular_direction, surface_frame
-from conformill.geometry.locate import Locator
+from conformill.geometry.differential import normal_curvature, perpendicular_direction, surface_frame
+from conformill.geometry.locate import Locator, _locate_one
+
+#: Below this many points :meth:`DomainSurface.sample` works in the calling thread: the
+#: planner samples curves of about a thousand points, thousands of times, where waking
+#: numba's threads costs more than the work (the same values either way).
+_SERIAL_BELOW = 8192
 
 
 @dataclass(frozen=True, eq=False)
@@ -29,19 +35,6 @@ class SurfaceSample:
     n: np.ndarray
     I: np.ndarray
     II: np.ndarray
-
-    def merged(self, other: "SurfaceSample", new: np.ndarray) -> "SurfaceSample":
-        """This sample and ``other`` interleaved: ``other``'s points at the True entries of
-        the mask ``new``, this one's at the others, each in its own order."""
-        at_old, at_new = np.flatnonzero(~new), np.flatnonzero(new)  # once for the seven fields
-
-        def mix(a, b):
-            out = np.empty((len(new),) + a.shape[1:], dtype=a.dtype)
-            out[at_old] = a
-            out[at_new] = b
-            return out
-        return SurfaceSample(*(mix(getattr(self, f), getattr(other, f))
-                               for f in ("uv", "face", "bary", "xyz", "n", "I", "II")))
 
     def length(self, d: np.ndarray) -> np.ndarray:
         """3D length per unit domain length in domain direction ``d (k, 2)``: sqrt(d^T I d)."""
@@ -93,24 +86,106 @@ class DomainSurface:
         self._pack = np.ascontiguousarray(np.column_stack([V, fr.n, fr.E, fr.F, fr.G, fr.L, fr.M, fr.N]),
                                           dtype=np.float64)
 
-    def sample(self, P: np.ndarray) -> SurfaceSample:
+    def sample(self, P: np.ndarray, keep: SurfaceSample | None = None, new: np.ndarray | None = None) -> SurfaceSample:
         """The surface at domain points ``P (k, 2)``.
+
+        With ``keep`` and the mask ``new`` (``(k,)`` bool), only the points at the True
+        entries are evaluated and ``keep``'s rows, in their order, fill the others: what
+        ``self.sample(P[new])`` interleaved with ``keep`` gives, in one pass (the planner
+        refining a curve keeps the samples it has).
 
         Raises
         ------
         PlanningError
             A point lies outside the domain mesh (a planner bug or a hole in the map).
         """
-        P = np.asarray(P, dtype=np.float64).reshape(-1, 2)
-        face, bary = self.locator.locate(P)
+        P = np.ascontiguousarray(np.asarray(P, dtype=np.float64).reshape(-1, 2))
+        loc = self.locator
+        args = (loc.uv, loc.F, loc._ptr, loc._items, loc._lo, loc._inv, loc._nx, loc._ny, loc.tol * loc.tol,
+                self._pack)
+        uv = P
+        face = np.empty(len(P), dtype=np.int64)
+        bary = np.empty((len(P), 3))
+        out = np.empty((len(P), self._pack.shape[1]))
+        if keep is None:
+            (_sample_serial if len(P) < _SERIAL_BELOW else _sample_parallel)(P, *args, face, bary, out)
+            at = P
+        else:
+            new = np.asarray(new, dtype=bool)
+            if new.shape != (len(P),) or len(P) - np.count_nonzero(new) != len(keep.face):
+                raise PlanningError(f"sample: {len(keep.face)} kept rows and {np.count_nonzero(new)} new ones "
+                                    f"for {len(P)} points")
+            uv = np.empty_like(P)
+            _sample_merge(P, new, keep.uv, keep.face, keep.bary, keep.xyz, keep.n, keep.I, keep.II, *args, uv,
+                          face, bary, out)
+            at = uv
         bad = np.flatnonzero(face < 0)
         if bad.size:
             raise PlanningError(
                 f"{bad.size} domain point(s) fall outside the parameter mesh, e.g. "
-                f"{P[bad[0]].round(6).tolist()}"
+                f"{at[bad[0]].round(6).tolist()}"
             )
-        out = interpolate(self._pack, self.F, face, bary)
-        xyz, n, I, II = out[:, 0:3], out[:, 3:6], out[:, 6:9], out[:, 9:12]
-        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
-        return SurfaceSample(uv=P, face=face, bary=bary, xyz=xyz, n=n, I=I, II=II)
+        return SurfaceSample(uv=uv, face=face, bary=bary, xyz=out[:, 0:3], n=out[:, 3:6], I=out[:, 6:9],
+                             II=out[:, 9:12])
 
+
+@njit(cache=True, nogil=True, inline="always")
+def _sample_one(q, P, uv, F, ptr, items, lo, inv_cell, nx, ny, tol2, pack, face, bary, out):
+    """Point ``q`` of :meth:`DomainSurface.sample`: located (:func:`conformill.geometry.locate._locate_one`),
+    the packed per-vertex values interpolated barycentrically and the normal (columns 3-5)
+    made unit (NaN row outside the domain). The same arithmetic as ``Locator.locate``,
+    :func:`conformill.geometry.differential.interpolate` and numpy's norm."""
+    f, b0, b1, b2 = _locate_one(P[q, 0], P[q, 1], uv, F, ptr, items, lo, inv_cell, nx, ny, tol2)
+    face[q] = f
+    bary[q, 0] = b0
+    bary[q, 1] = b1
+    bary[q, 2] = b2
+    if f < 0:
+        for j in range(out.shape[1]):
+            out[q, j] = np.nan
+        return
+    a, b, d = F[f, 0], F[f, 1], F[f, 2]
+    for j in range(out.shape[1]):
+        out[q, j] = b0 * pack[a, j] + b1 * pack[b, j] + b2 * pack[d, j]
+    nn = np.sqrt(out[q, 3] * out[q, 3] + out[q, 4] * out[q, 4] + out[q, 5] * out[q, 5])
+    if nn < 1e-300:  # (np.maximum: NaN stays NaN)
+        nn = 1e-300
+    out[q, 3] /= nn
+    out[q, 4] /= nn
+    out[q, 5] /= nn
+
+
+@njit(cache=True, nogil=True)
+def _sample_serial(P, uv, F, ptr, items, lo, inv_cell, nx, ny, tol2, pack, face, bary, out):
+    for q in range(P.shape[0]):
+        _sample_one(q, P, uv, F, ptr, items, lo, inv_cell, nx, ny, tol2, pack, face, bary, out)
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _sample_parallel(P, uv, F, ptr, items, lo, inv_cell, nx, ny, tol2, pack, face, bary, out):
+    for q in prange(P.shape[0]):
+        _sample_one(q, P, uv, F, ptr, items, lo, inv_cell, nx, ny, tol2, pack, face, bary, out)
+
+
+@njit(cache=True, nogil=True)
+def _sample_merge(P, new, kuv, kface, kbary, kxyz, kn, kI, kII, uv, F, ptr, items, lo, inv_cell, nx, ny, tol2,
+                  pack, uv_out, face, bary, out):
+    """:meth:`DomainSurface.sample` with ``keep``: the rows at ``new`` evaluated, the kept
+    rows copied in order."""
+    j = 0
+    for q in range(P.shape[0]):
+        if new[q]:
+            uv_out[q, 0] = P[q, 0]
+            uv_out[q, 1] = P[q, 1]
+            _sample_one(q, P, uv, F, ptr, items, lo, inv_cell, nx, ny, tol2, pack, face, bary, out)
+            continue
+        uv_out[q, 0] = kuv[j, 0]
+        uv_out[q, 1] = kuv[j, 1]
+        face[q] = kface[j]
+        for c in range(3):
+            bary[q, c] = kbary[j, c]
+            out[q, c] = kxyz[j, c]
+            out[q, 3 + c] = kn[j, c]
+            out[q, 6 + c] = kI[j, c]
+            out[q, 9 + c] = kII[j, c]
+        j += 1

@@ -23,7 +23,7 @@ from scipy.spatial import cKDTree
 
 from conformill.errors import PlanningError
 from conformill.geometry.closest import segment_d2
-from conformill.planning.steps import side_interval_stock
+from conformill.planning.steps import allowed_across, side_interval_stock
 
 log = logging.getLogger(__name__)
 
@@ -205,8 +205,9 @@ def _nearest_vertex(P, Q):
 
 
 #: Below this many point-vertex pairs the exact distance scans the curve instead of
-#: building a k-d tree of it (about 2 ms of scanning).
-_SCAN_PAIRS = 2_000_000
+#: building a k-d tree of it (about 0.6 ms of scanning, what a tree of a 4000-point ring costs
+#: to build and query for 400 points).
+_SCAN_PAIRS = 500_000
 
 #: Samples whose unit normal (towards the tool) has ``n_z`` below this face down so far
 #: that no ball of a 3-axis tool touches them (the ball's upper half is hidden by its shank,
@@ -337,6 +338,90 @@ def _envelope(A, seg, k, closed):
     return E
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _gap_length(xyz, i):
+    """3D length of the gap after sample ``i`` (as numpy's norm of the difference)."""
+    dx = xyz[i + 1, 0] - xyz[i, 0]
+    dy = xyz[i + 1, 1] - xyz[i, 1]
+    dz = xyz[i + 1, 2] - xyz[i, 2]
+    return np.sqrt(dx * dx + dy * dy + dz * dz)
+
+
+@njit(cache=True, nogil=True)
+def _split_gaps(tau, xyz, seg_len):
+    """:meth:`Planner.evaluate`'s refinement of the along-parameters, compiled: every gap
+    whose 3D length exceeds ``seg_len`` gets ``ceil(length / seg_len) - 1`` new parameters
+    evenly inside. Returns ``(n_long, tau_new, new, ok)``: the number of long gaps, the
+    parameters in order with their new-or-not mask, and whether the new parameters lie
+    strictly before the next old one (else the caller sorts, :func:`_refined_sorted`)."""
+    k = tau.shape[0]
+    n_long = 0
+    total = k
+    for i in range(k - 1):
+        d = _gap_length(xyz, i)
+        if d > seg_len:
+            n_long += 1
+            total += int(np.ceil(d / seg_len)) - 1
+    out = np.empty(total)
+    new = np.zeros(total, dtype=np.bool_)
+    if n_long == 0:
+        return 0, out, new, True
+    m = 0
+    last = -np.inf
+    ok = True
+    for i in range(k):
+        t0 = tau[i]
+        if t0 > last:  # (equal parameters: the second is dropped, as np.diff(...) > 0 does)
+            out[m] = t0
+            m += 1
+            last = t0
+        if i == k - 1:
+            break
+        d = _gap_length(xyz, i)
+        if d > seg_len:
+            q = int(np.ceil(d / seg_len))
+            w = tau[i + 1] - t0
+            for j in range(1, q):
+                e = t0 + w * (j / q)
+                if e >= tau[i + 1]:
+                    ok = False
+                if e > last:
+                    out[m] = e
+                    new[m] = True
+                    m += 1
+                    last = e
+    return n_long, out[:m], new[:m], ok
+
+
+def _refined(tau, xyz, seg_len):
+    """``(done, tau_new, new)`` of one refinement round (:func:`_split_gaps`); ``tau_new``
+    is None where the caller must sort (:func:`_refined_sorted`)."""
+    n_long, tau_new, new, ok = _split_gaps(np.ascontiguousarray(tau, dtype=np.float64), xyz, float(seg_len))
+    if n_long == 0:
+        return True, None, None
+    return False, (tau_new if ok else None), new
+
+
+def _refined_sorted(tau, xyz, seg_len):
+    """The refinement of :func:`_split_gaps` by a stable sort of all the parameters (the
+    reference; for the rare curve where rounding puts a new parameter at or past the next
+    old one)."""
+    seg = np.linalg.norm(np.diff(xyz, axis=0), axis=1)
+    long_ = np.flatnonzero(seg > seg_len)
+    k = np.ceil(seg[long_] / seg_len).astype(np.int64)
+    owner = np.repeat(long_, k - 1)  # m - 1 new parameters inside each long gap
+    m = np.repeat(k, k - 1)
+    j = np.arange(owner.size) - np.repeat(np.cumsum(k - 1) - (k - 1), k - 1) + 1
+    extra = tau[owner] + (tau[owner + 1] - tau[owner]) * (j / m)
+    both = np.concatenate([tau, extra])
+    order = np.argsort(both, kind="stable")
+    tau_new = both[order]
+    # a gap too narrow to split in floating point adds nothing (the stable sort puts
+    # the existing parameter first, so only a new one is dropped)
+    keep = np.concatenate([[True], np.diff(tau_new) > 0])
+    return tau_new[keep], (order >= len(tau))[keep]
+
+
 class Levels:
     """A level per along-parameter: ``s(tau)``, linear between the knots ``tau_k``.
 
@@ -426,6 +511,7 @@ class Planner:
         self.concave_cap = concave_cap
         self.rise_tol = float(rise_tol)
         self.max_step = float(max_step)
+        self._flat = None  # the flat side interval with the stock and the cap (allowed)
 
     # -- evaluation ---------------------------------------------------------------
     def evaluate(self, family: Family, s: float, max_rounds: int = 6, tau: np.ndarray | None = None) -> Curve:
@@ -446,26 +532,15 @@ class Planner:
             else:
                 # a domain point depends on its own along-parameter only: the surface is
                 # evaluated at the new ones and the old samples are kept
-                S = S.merged(self.surface.sample(P[new]), new)
+                S = self.surface.sample(P, keep=S, new=new)
             if rnd == max_rounds:
                 break
-            seg = np.linalg.norm(np.diff(S.xyz, axis=0), axis=1)
-            long_ = np.flatnonzero(seg > self.seg_len)
-            if long_.size == 0:
+            done, tau_new, new = _refined(tau, np.ascontiguousarray(S.xyz), self.seg_len)
+            if done:
                 break
-            k = np.ceil(seg[long_] / self.seg_len).astype(np.int64)
-            owner = np.repeat(long_, k - 1)  # m - 1 new parameters inside each long gap
-            m = np.repeat(k, k - 1)
-            j = np.arange(owner.size) - np.repeat(np.cumsum(k - 1) - (k - 1), k - 1) + 1
-            extra = tau[owner] + (tau[owner + 1] - tau[owner]) * (j / m)
-            both = np.concatenate([tau, extra])
-            order = np.argsort(both, kind="stable")
-            tau_new = both[order]
-            # a gap too narrow to split in floating point adds nothing (the stable sort puts
-            # the existing parameter first, so only a new one is dropped)
-            keep = np.concatenate([[True], np.diff(tau_new) > 0])
-            new = (order >= len(tau))[keep]
-            tau = tau_new[keep]
+            if tau_new is None:  # (rounding put a new parameter out of order: sort them)
+                tau_new, new = _refined_sorted(tau, S.xyz, self.seg_len)
+            tau = tau_new
         ls, reach = self.allowed(S, t)
         lv = _levels_at(s, tau)
         return Curve(s_low, tau, S, t, ls, reach, family.rate(lv, tau, P, t),
@@ -479,25 +554,22 @@ class Planner:
         get at least the flat interval: no ball touches them, so the scallop there is not
         the program's (``verify`` leaves them out as unreachable).
         """
-        kappa = S.curvature(S.across(t))
+        # (one compiled pass: planning.steps.allowed_across, the same arithmetic as
+        # S.curvature(S.across(t)), the rise and side_interval_stock in numpy)
         # Where the path is concave along its direction, its straight moves ride above the
         # surface by up to the forward chord tolerance (or kappa L_max^2 / 8 when the
         # longest step binds): that material adds to the scallop, so the side step there
-        # is planned for what is left of h. Zero on planes and on convex ground.
-        h = self.params.scallop
-        if self.rise_tol > 0:
-            along = np.maximum(S.curvature(t), 0.0)
-            rise = np.minimum(self.rise_tol, along * self.max_step ** 2 / 8.0)
-            h = h - np.nan_to_num(rise, nan=self.rise_tol)
-        # with stock, the ball rolls on the offset surface (the cap holds there)
-        ls, reach = side_interval_stock(h, self.params.tool_radius, kappa, self.params.stock, self.concave_cap)
-        ls = np.asarray(ls, dtype=np.float64)
-        down = S.n[:, 2] < UNDERCUT_NZ  # no ball touches these: the flat step, not theirs
-        if down.any():
-            flat, _ = side_interval_stock(self.params.scallop, self.params.tool_radius, np.zeros(1),
-                                          self.params.stock, self.concave_cap)
-            ls = np.where(down, np.maximum(ls, flat[0]), ls)
-        return ls, np.asarray(reach, dtype=bool)
+        # is planned for what is left of h. Zero on planes and on convex ground. With
+        # stock, the ball rolls on the offset surface (the cap holds there).
+        p = self.params
+        cap = np.inf if self.concave_cap is None else float(self.concave_cap)
+        if self._flat is None:
+            self._flat = float(side_interval_stock(p.scallop, p.tool_radius, np.zeros(1), p.stock,
+                                                   self.concave_cap)[0][0])
+        c = np.ascontiguousarray
+        return allowed_across(c(S.I, dtype=np.float64), c(S.II, dtype=np.float64), c(S.n, dtype=np.float64),
+                              c(t, dtype=np.float64), float(p.scallop), float(p.tool_radius), float(p.stock), cap,
+                              self.rise_tol, self.max_step ** 2, UNDERCUT_NZ, self._flat)
 
     def domain_steps(self, c: Curve) -> np.ndarray:
         """Step in ``s`` allowed at each sample: ``l_s |r_t| / (sqrt(EG - F^2) rate)``."""

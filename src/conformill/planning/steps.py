@@ -260,6 +260,87 @@ def side_interval_stock(h, r, kappa, stock: float, cap: float | None = None):
     return ls, reach
 
 
+@njit(cache=True, nogil=True, error_model="numpy")
+def allowed_across(I, II, n, t, scallop, r, stock, cap, rise_tol, max_step2, undercut_nz, flat):
+    """The planner's allowed side interval at surface samples, in one compiled pass.
+
+    What :meth:`conformill.patterns.family.Planner.allowed` computes with numpy, operation
+    for operation (the same bits): the normal curvature across the domain tangent ``t``
+    (``kappa``, :func:`conformill.geometry.differential.normal_curvature` in the direction
+    of :func:`conformill.geometry.differential.perpendicular_direction`); with
+    ``rise_tol > 0`` the chord rise over a path concave along ``t``, ``min(rise_tol,
+    kappa_t max_step^2 / 8)`` (``rise_tol`` where that is NaN), taken off ``scallop``;
+    :func:`side_interval_stock` of what is left, capped at ``cap`` (``inf``: none) on the
+    offset; and at least ``flat`` where the normal's ``n_z`` is below ``undercut_nz``.
+
+    Parameters
+    ----------
+    I, II, n : (k, 3) float64
+        First and second fundamental forms and unit normals at the samples.
+    t : (k, 2) float64
+        Domain tangents of the path.
+    scallop, r, stock, cap, rise_tol : float
+        ``h``, the ball radius, the stock, the cap of the chord (``inf``: none) and the
+        forward chord tolerance (0: no rise).
+    max_step2 : float
+        The longest forward step, squared.
+    undercut_nz : float
+        Samples with ``n_z`` below this get at least ``flat``.
+    flat : float
+        The flat interval with the stock and the cap (the caller's
+        :func:`side_interval_stock` of ``kappa = 0``).
+
+    Returns
+    -------
+    ls : (k,) float64
+    reach : (k,) bool
+    """
+    k = I.shape[0]
+    ls = np.empty(k)
+    reach = np.empty(k, dtype=np.bool_)
+    for i in range(k):
+        E, F, G = I[i, 0], I[i, 1], I[i, 2]
+        L, M, N = II[i, 0], II[i, 1], II[i, 2]
+        tu, tv = t[i, 0], t[i, 1]
+        a = -(F * tu + G * tv)
+        b = E * tu + F * tv
+        num = L * a * a + 2.0 * M * a * b + N * b * b
+        den = E * a * a + 2.0 * F * a * b + G * b * b
+        kap = num / den if den > 0 else np.nan
+        h = scallop
+        if rise_tol > 0:
+            num = L * tu * tu + 2.0 * M * tu * tv + N * tv * tv
+            den = E * tu * tu + 2.0 * F * tu * tv + G * tv * tv
+            along = num / den if den > 0 else np.nan
+            if along < 0.0:  # (np.maximum: NaN stays NaN)
+                along = 0.0
+            rise = along * max_step2 / 8.0
+            if rise_tol < rise:  # (np.minimum: NaN stays NaN)
+                rise = rise_tol
+            h = h - (rise_tol if rise != rise else rise)
+        if stock == 0.0:
+            w = _side_interval_one(h, kap, r)
+            ok = math.isfinite(kap) and r * kap < 1.0
+            if cap < w:
+                w = cap
+        else:
+            f = 1.0 - kap * stock
+            good = math.isfinite(f) and f > 0.0
+            fs = f if good else 1.0
+            kk = kap / fs if good else np.nan
+            w = _side_interval_one(h, kk, r)
+            ok = math.isfinite(kk) and r * kk < 1.0 and good
+            if cap < w:
+                w = cap
+            if ok:
+                w = w / fs
+        if n[i, 2] < undercut_nz and flat > w:  # (np.maximum: NaN stays NaN)
+            w = flat
+        ls[i] = w
+        reach[i] = ok
+    return ls, reach
+
+
 def scallop_height(w, r, kappa):
     """Cusp height left between two passes whose CC points are a chord ``w`` apart.
 
@@ -485,6 +566,7 @@ def polar_forward_step(l_f, E, F, G, theta, rho):
 
 
 __all__ = [
+    "allowed_across",
     "check_params",
     "side_interval_stock",
     "check_stock",

@@ -1,0 +1,222 @@
+"""The pattern stage's compiled kernels give the bits of the numpy code they replaced.
+
+Session 42 moved three steps of :meth:`Planner.evaluate` into compiled loops: the surface
+sample (point location, interpolation and the unit normal in one pass), the refinement of
+the along-parameters, and :meth:`Planner.allowed`. The plans are the same bytes only if
+each step is the same arithmetic, so each is checked here against the numpy it replaced,
+for exact equality (NaN where NaN), on inputs that reach every branch.
+"""
+
+import numpy as np
+import pytest
+
+from conformill.geometry import surface as surface_mod
+from conformill.geometry.differential import interpolate, normal_curvature, perpendicular_direction
+from conformill.geometry.surface import DomainSurface, SurfaceSample
+from conformill.mesh import synthetic
+from conformill.param import parameterize
+from conformill.patterns import family
+from conformill.patterns.family import Planner, _refined, _refined_sorted
+from conformill.planning.steps import side_interval_stock
+from conformill.types import PathParams
+
+
+def _allowed_numpy(planner, S, t):
+    """:meth:`Planner.allowed` as it was in numpy (session 41)."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return _allowed_numpy_body(planner, S, t)
+
+
+def _allowed_numpy_body(planner, S, t):
+    kappa = S.curvature(S.across(t))
+    h = planner.params.scallop
+    if planner.rise_tol > 0:
+        along = np.maximum(S.curvature(t), 0.0)
+        rise = np.minimum(planner.rise_tol, along * planner.max_step ** 2 / 8.0)
+        h = h - np.nan_to_num(rise, nan=planner.rise_tol)
+    ls, reach = side_interval_stock(h, planner.params.tool_radius, kappa, planner.params.stock,
+                                    planner.concave_cap)
+    ls = np.asarray(ls, dtype=np.float64)
+    down = S.n[:, 2] < family.UNDERCUT_NZ
+    if down.any():
+        flat, _ = side_interval_stock(planner.params.scallop, planner.params.tool_radius, np.zeros(1),
+                                      planner.params.stock, planner.concave_cap)
+        ls = np.where(down, np.maximum(ls, flat[0]), ls)
+    return ls, np.asarray(reach, dtype=bool)
+
+
+def _random_sample(k, seed):
+    """Samples with random positive and degenerate metrics, curvatures from sharp convex to
+    past the ball's concave limit, normals facing up and down, and some NaN entries."""
+    rng = np.random.default_rng(seed)
+    E = rng.uniform(0.2, 3.0, k)
+    G = rng.uniform(0.2, 3.0, k)
+    F = rng.uniform(-0.9, 0.9, k) * np.sqrt(E * G)
+    F[:20] = np.sqrt(E[:20] * G[:20])  # degenerate: EG - F^2 = 0
+    II = rng.normal(0.0, 0.4, (k, 3)) * rng.choice([0.01, 0.1, 1.0, 5.0], (k, 1))
+    II[20:30] = np.nan
+    II[30:40] = 0.0
+    nz = rng.uniform(-1.0, 1.0, k)
+    nz[40:45] = family.UNDERCUT_NZ
+    n = np.column_stack([np.sqrt(1.0 - nz ** 2), np.zeros(k), nz])
+    I = np.column_stack([E, F, G])
+    S = SurfaceSample(uv=np.zeros((k, 2)), face=np.zeros(k, np.int64), bary=np.full((k, 3), 1 / 3),
+                      xyz=np.zeros((k, 3)), n=n, I=I, II=II)
+    t = rng.normal(size=(k, 2))
+    t[45:50] = 0.0  # no direction: NaN curvature
+    return S, t
+
+
+@pytest.mark.parametrize("stock", [0.0, 0.4, -0.3])
+@pytest.mark.parametrize("cap", [None, 0.3])
+@pytest.mark.parametrize("rise_tol, max_step", [(0.0, np.inf), (0.0025, np.inf), (0.0025, 2.0)])
+def test_allowed_is_the_numpy_arithmetic_bit_for_bit(stock, cap, rise_tol, max_step):
+    params = PathParams(tool_radius=4.0, scallop=0.01, tolerance=0.01, stock=stock)
+    planner = Planner(None, params, seg_len=0.2, concave_cap=cap, rise_tol=rise_tol, max_step=max_step)
+    S, t = _random_sample(4000, seed=int(100 * abs(stock)) + (cap is None) + int(1e4 * rise_tol))
+    ls, reach = planner.allowed(S, t)
+    ref_ls, ref_reach = _allowed_numpy(planner, S, t)
+    np.testing.assert_array_equal(ls, ref_ls)  # NaN where NaN, else the same bits
+    np.testing.assert_array_equal(reach, ref_reach)
+    assert reach.dtype == bool and ls.dtype == np.float64
+    assert (~reach).any() and reach.any()
+    if cap is not None and stock == 0:
+        assert np.any(ls == cap)  # the cap binds somewhere
+
+
+def test_allowed_follows_a_patched_undercut_limit(monkeypatch):
+    """The limit is read when the planner is asked (a test patches it)."""
+    params = PathParams(tool_radius=4.0, scallop=0.01, tolerance=0.01)
+    planner = Planner(None, params, seg_len=0.2)
+    S, t = _random_sample(2000, seed=5)
+    monkeypatch.setattr(family, "UNDERCUT_NZ", 0.5)
+    np.testing.assert_array_equal(planner.allowed(S, t)[0], _allowed_numpy(planner, S, t)[0])
+
+
+def _curve(k, seed, seg_len):
+    rng = np.random.default_rng(seed)
+    tau = np.sort(rng.uniform(0.0, 1.0, k))
+    tau[0], tau[-1] = 0.0, 1.0
+    steps = rng.choice([0.3, 1.0, 2.5, 9.0], k) * seg_len * rng.uniform(0.5, 1.0, k)
+    xyz = np.column_stack([np.cumsum(steps), rng.normal(0.0, 0.1 * seg_len, k), np.zeros(k)])
+    return tau, xyz
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_the_refinement_is_the_stable_sort_bit_for_bit(seed):
+    seg_len = 0.2
+    tau, xyz = _curve(500, seed, seg_len)
+    done, tau_new, new = _refined(tau, xyz, seg_len)
+    assert not done and tau_new is not None
+    ref_tau, ref_new = _refined_sorted(tau, xyz, seg_len)
+    np.testing.assert_array_equal(tau_new, ref_tau)
+    np.testing.assert_array_equal(new, ref_new)
+    assert np.all(np.diff(tau_new) > 0)
+    np.testing.assert_array_equal(tau_new[~new], tau)  # the old parameters, all kept
+
+
+def _round(tau, xyz, seg_len):
+    """One refinement round as :meth:`Planner.evaluate` makes it: compiled, or sorted
+    where the compiled merge hands over."""
+    done, tau_new, new = _refined(tau, xyz, seg_len)
+    if done:
+        return None, None, False
+    if tau_new is None:
+        return (*_refined_sorted(tau, xyz, seg_len), True)
+    return tau_new, new, False
+
+
+@pytest.mark.parametrize("ulps", [1, 2, 3, 7])
+def test_a_gap_too_narrow_to_split_is_the_sort_bit_for_bit(ulps):
+    # a long 3D gap over a few ulps of tau: its new parameters round onto the old ones
+    # (dropped) or past the next one (the compiled merge hands the round to the sort)
+    tau = np.array([0.0, 0.1, 0.1 + ulps * np.spacing(0.1), 1.0])
+    xyz = np.array([[0.0, 0, 0], [0.01, 0, 0], [5.0, 0, 0], [5.01, 0, 0]])
+    tau_new, new, sorted_ = _round(tau, xyz, 0.2)
+    ref_tau, ref_new = _refined_sorted(tau, xyz, 0.2)
+    np.testing.assert_array_equal(tau_new, ref_tau)
+    np.testing.assert_array_equal(new, ref_new)
+    assert np.all(np.diff(tau_new) > 0)
+    assert len(tau_new) <= len(tau) + ulps - 1  # at most one new parameter per ulp inside
+
+
+def test_the_refinement_hands_over_where_a_new_parameter_rounds_onto_the_next():
+    tau = np.array([0.0, 0.5, np.nextafter(0.5, 1.0), 1.0])
+    xyz = np.array([[0.0, 0, 0], [0.1, 0, 0], [1.0, 0, 0], [1.1, 0, 0]])
+    assert _refined(tau, xyz, 0.2)[1] is None  # 0.5 + ulp (j / 5) rounds up to 0.5 + ulp for j >= 3
+    tau_new, new, sorted_ = _round(tau, xyz, 0.2)
+    assert sorted_
+    np.testing.assert_array_equal(tau_new, tau)  # nothing fits inside
+    assert not new.any()
+
+
+def test_the_refinement_is_done_when_every_gap_is_short():
+    tau, xyz = _curve(300, 7, 0.2)
+    assert _refined(tau, xyz * 1e-3, 0.2)[0]
+
+
+@pytest.fixture(scope="module")
+def surface():
+    mesh = synthetic.face_like(seed=3, spacing=2.0, size=80.0)
+    p = parameterize(mesh, boundary="circle")
+    return DomainSurface(mesh.V, mesh.F, p.uv)
+
+
+def _sample_numpy(surf, P):
+    """:meth:`DomainSurface.sample` as it was (session 41): locate, interpolate, normalise."""
+    face, bary = surf.locator.locate(P)
+    out = interpolate(surf._pack, surf.F, face, bary)
+    n = out[:, 3:6]
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+    return face, bary, out
+
+
+@pytest.mark.parametrize("k", [700, surface_mod._SERIAL_BELOW + 1])
+def test_the_sample_is_the_numpy_arithmetic_bit_for_bit_on_either_path(surface, k):
+    rng = np.random.default_rng(k)
+    rho = 0.999 * np.sqrt(rng.uniform(0.0, 1.0, k))
+    th = rng.uniform(0.0, 2 * np.pi, k)
+    P = np.column_stack([rho * np.cos(th), rho * np.sin(th)])
+    P[:20] = surface.uv[surface.F[:20, 0]]  # on vertices: several faces hold the point
+    S = surface.sample(P)
+    face, bary, out = _sample_numpy(surface, P)
+    np.testing.assert_array_equal(S.face, face)
+    np.testing.assert_array_equal(S.bary, bary)
+    for got, cols in ((S.xyz, slice(0, 3)), (S.n, slice(3, 6)), (S.I, slice(6, 9)), (S.II, slice(9, 12))):
+        np.testing.assert_array_equal(got, out[:, cols])
+    np.testing.assert_allclose(np.linalg.norm(S.n, axis=1), 1.0, rtol=1e-12)
+
+
+def test_a_point_outside_the_domain_is_named(surface):
+    from conformill.errors import PlanningError
+
+    with pytest.raises(PlanningError, match=r"1 domain point\(s\) fall outside the parameter mesh, e.g. \[1000.0, 0.0\]"):
+        surface.sample(np.array([[0.0, 0.0], [1000.0, 0.0]]))
+
+
+def test_the_sample_keeps_its_rows_and_evaluates_the_new_ones_only(surface):
+    rng = np.random.default_rng(11)
+    k = 900
+    rho = 0.99 * np.sqrt(rng.uniform(0.0, 1.0, k))
+    th = rng.uniform(0.0, 2 * np.pi, k)
+    P = np.column_stack([rho * np.cos(th), rho * np.sin(th)])
+    new = rng.uniform(size=k) < 0.3
+    kept = surface.sample(P[~new])
+    S = surface.sample(P, keep=kept, new=new)
+    full = surface.sample(P)
+    for f in ("uv", "face", "bary", "xyz", "n", "I", "II"):
+        np.testing.assert_array_equal(getattr(S, f), getattr(full, f))
+        np.testing.assert_array_equal(getattr(S, f)[~new], getattr(kept, f))
+    # the kept rows are copied, not evaluated again: a marked row keeps its value
+    marked = SurfaceSample(**{f: getattr(kept, f).copy() for f in ("uv", "face", "bary", "xyz", "n", "I", "II")})
+    marked.xyz[:, 2] = -7.0
+    assert np.all(surface.sample(P, keep=marked, new=new).xyz[~new, 2] == -7.0)
+
+
+def test_kept_rows_must_match_the_mask(surface):
+    from conformill.errors import PlanningError
+
+    P = np.zeros((5, 2))
+    kept = surface.sample(P[:3])
+    with pytest.raises(PlanningError, match="3 kept rows and 1 new ones for 5 points"):
+        surface.sample(P, keep=kept, new=np.array([True, False, False, False, False]))

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from conformill.geometry import surface as surface_mod
-from conformill.geometry.differential import interpolate, normal_curvature, perpendicular_direction
+from conformill.geometry.differential import interpolate
 from conformill.geometry.surface import DomainSurface, SurfaceSample
 from conformill.mesh import synthetic
 from conformill.param import parameterize

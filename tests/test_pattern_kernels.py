@@ -220,3 +220,101 @@ def test_kept_rows_must_match_the_mask(surface):
     kept = surface.sample(P[:3])
     with pytest.raises(PlanningError, match="3 kept rows and 1 new ones for 5 points"):
         surface.sample(P, keep=kept, new=np.array([True, False, False, False, False]))
+
+
+# -- the curve families' compiled steps (the polygon's limit, the warp, rings and turns) --
+
+from conformill.patterns import domains  # noqa: E402
+from conformill.patterns.warp import Warp  # noqa: E402
+
+
+def _limit_numpy(poly, theta):
+    """:meth:`BoundaryPolygon.limit` as it was (session 41)."""
+    th = np.mod(theta, domains.TWO_PI)
+    b = len(poly.ang)
+    j = (np.searchsorted(poly.ang, th, side="right") - 1) % b
+    cs = np.cos(th - poly._phi[j])
+    with np.errstate(divide="ignore", over="ignore"):
+        t = poly._p[j] / np.where(cs > 1e-300, cs, 1e-300)
+    return np.where(poly._ok[j] & (cs > 1e-300) & (t > 0) & np.isfinite(t), t, poly.R0)
+
+
+def _polygon(seed, b=300):
+    rng = np.random.default_rng(seed)
+    ang = np.sort(rng.uniform(0.0, 2 * np.pi, b))
+    rad = 1.0 - 0.1 * rng.uniform(size=b)
+    uvb = np.column_stack([rad * np.cos(ang), rad * np.sin(ang)])
+    uvb[5] = uvb[4]  # a degenerate edge
+    return domains.BoundaryPolygon(uvb)
+
+
+def test_the_polygon_limit_is_the_numpy_arithmetic_bit_for_bit():
+    poly = _polygon(0)
+    rng = np.random.default_rng(1)
+    theta = np.concatenate([rng.uniform(-40.0, 40.0, 50000), poly.ang, poly.ang + 1e-15, [0.0, -0.0, 2 * np.pi,
+                                                                                          -2 * np.pi, np.nan]])
+    np.testing.assert_array_equal(poly.limit(theta), _limit_numpy(poly, theta))
+    np.testing.assert_array_equal(poly.limit(theta[:50600].reshape(-1, 8)), _limit_numpy(poly, theta[:50600]).reshape(-1, 8))
+
+
+def _warp(closed, seed=2, m=65, n=33):
+    rng = np.random.default_rng(seed)
+    G = np.sort(rng.uniform(size=(m, n)), axis=0)
+    G[0], G[-1] = 0.0, 1.0
+    tau = np.arange(n) / n if closed else np.linspace(0.0, 1.0, n)
+    return Warp(tau, G, 0.05, lambda t: 0.9 + 0.05 * np.cos(7 * np.asarray(t)), closed)
+
+
+def _offset_numpy(w, s, tau, end=None):
+    """:meth:`Warp.offset` as it was (session 41)."""
+    x, dx = w.fraction(s, tau)
+    if end is None:
+        end = w.end(np.asarray(tau, dtype=np.float64))
+    span = np.asarray(end, dtype=np.float64) - w.start
+    return w.start + x * span, dx * span
+
+
+@pytest.mark.parametrize("closed", [False, True])
+def test_the_warp_offset_is_the_numpy_arithmetic_bit_for_bit(closed):
+    w = _warp(closed)
+    rng = np.random.default_rng(3)
+    tau = np.concatenate([rng.uniform(-0.2, 1.2, 5000), [0.0, 1.0]])
+    for s in (0.37, rng.uniform(-0.1, 1.1, tau.size)):
+        for got, ref in zip(w.offset(s, tau), _offset_numpy(w, s, tau)):
+            np.testing.assert_array_equal(got, ref)
+        end = rng.uniform(0.5, 1.0, tau.size)
+        for got, ref in zip(w.offset(s, tau, end=end), _offset_numpy(w, s, tau, end=end)):
+            np.testing.assert_array_equal(got, ref)
+    g = w.offset(0.5, tau.reshape(-1, 2))[0]
+    assert g.shape == (tau.size // 2, 2)
+
+
+def _ring_numpy(fam, s, tau):
+    """``Rings.along`` / ``SpiralTurn.along`` with a warp, as they were (session 41)."""
+    th = fam.theta0 + domains.TWO_PI * tau
+    c, s_ = np.cos(th), np.sin(th)
+    lim = _limit_numpy(fam.poly, th)
+    rho, dg = _offset_numpy(fam.warp, s, tau, end=lim)
+    rho = np.minimum(rho, lim)
+    P = rho[:, None] * np.column_stack([c, s_])
+    return P, domains._unit_tangent(P, tau, np.column_stack([-s_, c])), dg
+
+
+def test_warped_rings_and_turns_are_the_numpy_arithmetic_bit_for_bit():
+    poly = _polygon(4)
+    rings = domains.Rings(poly, 0.01, theta0=0.3, warp=_warp(True))
+    turn = domains.SpiralTurn(poly, 0.2, 0.35, 0.01, theta0=0.3, warp=_warp(True))
+    tau = np.linspace(0.0, 1.0, 3001)
+    for fam, lev in ((rings, 0.37), (rings, 1.0), (rings, np.linspace(0.3, 0.4, tau.size)),
+                     (turn, turn.r0 + tau * (turn.r1 - turn.r0))):
+        P, t = fam.along(lev, tau)
+        ref_P, ref_t, ref_dg = _ring_numpy(fam, lev, tau)
+        np.testing.assert_array_equal(P, ref_P)
+        np.testing.assert_array_equal(t, ref_t)
+        # the rate reuses the ray and dg/ds of this call: the same as computing them again
+        rate = fam.rate(lev, tau, P, t)
+        th = fam.theta0 + domains.TWO_PI * tau
+        a = np.column_stack([np.cos(th), np.sin(th)])
+        det = np.abs(a[:, 0] * t[:, 1] - a[:, 1] * t[:, 0])
+        np.testing.assert_array_equal(rate, np.maximum(det, domains.MIN_CROSSING) * ref_dg)
+    assert np.any(np.linalg.norm(rings.along(1.0, tau)[0], axis=1) == poly.limit(rings.theta0 + domains.TWO_PI * tau))

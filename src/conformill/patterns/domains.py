@@ -9,10 +9,13 @@ every curve is clipped radially to that polygon: the last ring is the boundary i
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit
 
 from conformill.patterns.family import Family
+from conformill.patterns.warp import _bilinear_one
 
 TWO_PI = 2.0 * np.pi
 
@@ -72,9 +75,45 @@ def _level_rate(fam, levels, tau, a, t):
 
 
 def _ray(fam, tau):
-    """Unit radial directions of the circle domain at along-parameters ``tau``."""
+    """Unit radial directions of the circle domain at along-parameters ``tau`` (the
+    cosines and sines of the family's last ``along`` call when it was on these very
+    ``tau``: the same values)."""
+    last = getattr(fam, "_last", None)
+    if last is not None and last[0] is tau and len(last) == 4:
+        return np.column_stack([last[2], last[3]])
     th = fam.theta0 + TWO_PI * tau
     return np.column_stack([np.cos(th), np.sin(th)])
+
+
+@njit(cache=True, nogil=True)
+def _ring_points(c, s, lim, G, lev, tau, closed, start):
+    """Points of a warped ring or spiral turn: the warp's base offset ``rho`` at each
+    level and ray (:meth:`conformill.patterns.warp.Warp.offset` with ``end = lim``),
+    held within the polygon's ``lim`` (as ``np.minimum``), at ``rho (c, s)``. Returns
+    ``(P, dg/ds)``."""
+    k = tau.shape[0]
+    P = np.empty((k, 2))
+    dg = np.empty(k)
+    for p in range(k):
+        x, dx = _bilinear_one(G, lev[p], tau[p], closed)
+        span = lim[p] - start
+        rho = start + x * span
+        dg[p] = dx * span
+        if not (rho <= lim[p]):  # (np.minimum: NaN from either side)
+            rho = lim[p] if (rho > lim[p] or lim[p] != lim[p]) else rho
+        P[p, 0] = rho * c[p]
+        P[p, 1] = rho * s[p]
+    return P, dg
+
+
+def _warped_ring(fam, lev, tau, c, s_, lim):
+    """``(P, t)`` of a warped :class:`Rings` or :class:`SpiralTurn` curve at levels ``lev``
+    (a scalar or one per ``tau``), remembering ``dg/ds`` and the ray for :meth:`rate`."""
+    tau = np.ascontiguousarray(tau, dtype=np.float64)
+    lev = np.array(np.broadcast_to(np.asarray(lev, dtype=np.float64), tau.shape))
+    P, dg = _ring_points(c, s_, lim, fam.warp.G, lev, tau, fam.warp.closed, fam.warp.start)
+    fam._last = (tau, dg, c, s_)
+    return P, _unit_tangent(P, tau, np.column_stack([-s_, c]))
 
 
 class IsoU(Family):
@@ -133,6 +172,50 @@ class Segment(Family):
         return np.linspace(0.0, 1.0, max(2, int(np.ceil(L / self.delta))) + 1)
 
 
+@njit(cache=True, nogil=True)
+def _edge_angles(theta, ang, phi):
+    """Per direction: the polygon edge it crosses (``j``, edge ``j -> j + 1`` cyclic, from
+    the sorted vertex angles ``ang``) and the angle to that edge's normal ``phi[j]``
+    (``theta mod 2 pi`` as ``np.mod``, the edge as ``np.searchsorted(..., side="right") - 1``)."""
+    k = theta.shape[0]
+    b = ang.shape[0]
+    j = np.empty(k, dtype=np.int64)
+    arg = np.empty(k)
+    for p in range(k):
+        th = np.fmod(theta[p], TWO_PI)
+        if th != 0.0:
+            if th < 0.0:  # (np.mod: the sign of the divisor)
+                th += TWO_PI
+        else:
+            th = 0.0
+        lo = 0
+        hi = b
+        while lo < hi:  # first vertex angle above th
+            mid = (lo + hi) // 2
+            if ang[mid] <= th:
+                lo = mid + 1
+            else:
+                hi = mid
+        e = (lo - 1) % b
+        j[p] = e
+        arg[p] = th - phi[e]
+    return j, arg
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _edge_distances(cs, j, p, ok, R0):
+    """Distance to the edge ``j`` along a direction at ``cos = cs`` to its normal (``R0``
+    where the edge is degenerate or not ahead)."""
+    k = cs.shape[0]
+    out = np.empty(k)
+    for q in range(k):
+        c = cs[q]
+        e = j[q]
+        t = p[e] / (c if c > 1e-300 else 1e-300)
+        out[q] = t if (ok[e] and c > 1e-300 and t > 0 and math.isfinite(t)) else R0
+    return out
+
+
 class BoundaryPolygon:
     """Radial clipping to the polygon of boundary vertices in the circle domain.
 
@@ -164,12 +247,11 @@ class BoundaryPolygon:
 
     def limit(self, theta: np.ndarray) -> np.ndarray:
         """Distance from the origin to the polygon along direction ``theta``."""
-        th = np.mod(theta, TWO_PI)
-        b = len(self.ang)
-        j = (np.searchsorted(self.ang, th, side="right") - 1) % b  # edge j -> j+1 (cyclic)
-        cs = np.cos(th - self._phi[j])
-        t = self._p[j] / np.where(cs > 1e-300, cs, 1e-300)
-        return np.where(self._ok[j] & (cs > 1e-300) & (t > 0) & np.isfinite(t), t, self.R0)
+        theta = np.asarray(theta, dtype=np.float64)
+        j, arg = _edge_angles(np.ascontiguousarray(theta).reshape(-1), self.ang, self._phi)
+        # (the cosine is numpy's: its bits, not libm's, as the plans have always used)
+        t = _edge_distances(np.cos(arg), j, self._p, self._ok, self.R0)
+        return t.reshape(theta.shape)
 
     def clip(self, P: np.ndarray) -> np.ndarray:
         rho = np.linalg.norm(P, axis=1)
@@ -213,12 +295,7 @@ class Rings(Family):
         if self.warp is None:
             rho = np.minimum(s, self.poly.limit(th))
             return rho[:, None] * np.column_stack([c, s_]), circle
-        lim = self.poly.limit(th)
-        rho, dg = self.warp.offset(s, tau, end=lim)
-        self._last = (tau, dg)
-        rho = np.minimum(rho, lim)
-        P = rho[:, None] * np.column_stack([c, s_])
-        return P, _unit_tangent(P, tau, circle)
+        return _warped_ring(self, s, tau, c, s_, self.poly.limit(th))
 
     def rate(self, s, tau, P, t):
         if self.warp is None:
@@ -249,12 +326,9 @@ class SpiralTurn(Family):
         c, s_ = np.cos(th), np.sin(th)
         lim = self.poly.limit(th)
         if self.warp is not None:  # r0, r1 are levels
-            rho_raw, dg = self.warp.offset(rho_raw, tau, end=lim)
-            self._last = (tau, dg)
+            return _warped_ring(self, rho_raw, tau, c, s_, lim)
         rho = np.minimum(rho_raw, lim)
         P = rho[:, None] * np.column_stack([c, s_])
-        if self.warp is not None:
-            return P, _unit_tangent(P, tau, np.column_stack([-s_, c]))
         dr = self.r1 - self.r0
         t = np.column_stack([dr * c - TWO_PI * rho * s_, dr * s_ + TWO_PI * rho * c])
         nt = np.linalg.norm(t, axis=1, keepdims=True)

@@ -35,38 +35,56 @@ from numba import njit
 from scipy.ndimage import gaussian_filter1d
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _bilinear_one(G, s, t, closed):
+    """``(x, dx/ds)`` of the bilinear interpolation of ``G`` (levels x columns) at level
+    ``s`` (clipped to [0, 1]) and along-parameter ``t`` (periodic when ``closed``)."""
+    m, n = G.shape
+    fs = min(max(s, 0.0), 1.0) * (m - 1)
+    j0 = min(int(math.floor(fs)), m - 2)
+    ws = fs - j0
+    if closed:
+        f = (t - math.floor(t)) * n  # tau mod 1, as np.mod for a positive period
+        i0 = int(math.floor(f)) % n
+        i1 = (i0 + 1) % n
+        wt = f - math.floor(f)
+    else:
+        f = min(max(t, 0.0), 1.0) * (n - 1)
+        i0 = min(int(math.floor(f)), n - 2)
+        i1 = i0 + 1
+        wt = f - i0
+    g00 = G[j0, i0]
+    g01 = G[j0, i1]
+    g10 = G[j0 + 1, i0]
+    g11 = G[j0 + 1, i1]
+    lo = g00 + wt * (g01 - g00)
+    hi = g10 + wt * (g11 - g10)
+    return lo + ws * (hi - lo), (hi - lo) * (m - 1)
+
+
 @njit(cache=True, nogil=True)
 def _bilinear(G, s, tau, closed):
-    """``(x, dx/ds)`` of the bilinear interpolation of ``G`` (levels x columns) at levels
-    ``s`` (clipped to [0, 1]) and along-parameters ``tau`` (periodic when ``closed``)."""
-    m, n = G.shape
+    """:func:`_bilinear_one` at levels ``s`` and along-parameters ``tau``."""
     k = tau.shape[0]
     x = np.empty(k)
     dx = np.empty(k)
     for p in range(k):
-        fs = min(max(s[p], 0.0), 1.0) * (m - 1)
-        j0 = min(int(math.floor(fs)), m - 2)
-        ws = fs - j0
-        t = tau[p]
-        if closed:
-            f = (t - math.floor(t)) * n  # tau mod 1, as np.mod for a positive period
-            i0 = int(math.floor(f)) % n
-            i1 = (i0 + 1) % n
-            wt = f - math.floor(f)
-        else:
-            f = min(max(t, 0.0), 1.0) * (n - 1)
-            i0 = min(int(math.floor(f)), n - 2)
-            i1 = i0 + 1
-            wt = f - i0
-        g00 = G[j0, i0]
-        g01 = G[j0, i1]
-        g10 = G[j0 + 1, i0]
-        g11 = G[j0 + 1, i1]
-        lo = g00 + wt * (g01 - g00)
-        hi = g10 + wt * (g11 - g10)
-        x[p] = lo + ws * (hi - lo)
-        dx[p] = (hi - lo) * (m - 1)
+        x[p], dx[p] = _bilinear_one(G, s[p], tau[p], closed)
     return x, dx
+
+
+@njit(cache=True, nogil=True)
+def _offsets(G, s, tau, closed, start, end):
+    """:meth:`Warp.offset` per point: ``start + x (end - start)`` and ``dx (end - start)``."""
+    k = tau.shape[0]
+    g = np.empty(k)
+    dg = np.empty(k)
+    for p in range(k):
+        x, dx = _bilinear_one(G, s[p], tau[p], closed)
+        span = end[p] - start
+        g[p] = start + x * span
+        dg[p] = dx * span
+    return g, dg
 
 
 class Warp:
@@ -107,11 +125,13 @@ class Warp:
 
         ``end`` may pass ``self.end(tau)`` when the caller has it already.
         """
-        x, dx = self.fraction(s, tau)
+        tau = np.ascontiguousarray(tau, dtype=np.float64)
         if end is None:
-            end = self.end(np.asarray(tau, dtype=np.float64))
-        span = np.asarray(end, dtype=np.float64) - self.start
-        return self.start + x * span, dx * span
+            end = self.end(tau)
+        s = np.array(np.broadcast_to(np.asarray(s, dtype=np.float64), tau.shape))
+        end = np.array(np.broadcast_to(np.asarray(end, dtype=np.float64), tau.shape))
+        g, dg = _offsets(self.G, s.reshape(-1), tau.reshape(-1), self.closed, self.start, end.reshape(-1))
+        return g.reshape(tau.shape), dg.reshape(tau.shape)
 
 
 def build_warp(planner, family, start: float, end, n_tau: int = 257, n_off: int = 193,

@@ -1,10 +1,12 @@
 """The pattern stage's compiled kernels give the bits of the numpy code they replaced.
 
-Session 42 moved three steps of :meth:`Planner.evaluate` into compiled loops: the surface
-sample (point location, interpolation and the unit normal in one pass), the refinement of
-the along-parameters, and :meth:`Planner.allowed`. The plans are the same bytes only if
-each step is the same arithmetic, so each is checked here against the numpy it replaced,
-for exact equality (NaN where NaN), on inputs that reach every branch.
+Session 42 moved the hot steps of :meth:`Planner.evaluate` and of the curve families into
+compiled loops: the surface sample (point location, interpolation and the unit normal in
+one pass, and the merge of a refined curve's kept rows), the refinement of the
+along-parameters, :meth:`Planner.allowed`, the circle domain's polygon limit, the warp's
+offsets and warped rings and spiral turns. The plans are the same bytes only if each step
+is the same arithmetic, so each is checked here against a numpy version of the code it
+replaced, for exact equality (NaN where NaN), on inputs that reach every branch.
 """
 
 import numpy as np
@@ -138,6 +140,26 @@ def test_a_gap_too_narrow_to_split_is_the_sort_bit_for_bit(ulps):
     np.testing.assert_array_equal(new, ref_new)
     assert np.all(np.diff(tau_new) > 0)
     assert len(tau_new) <= len(tau) + ulps - 1  # at most one new parameter per ulp inside
+    assert sorted_  # 0.1 + k ulp (j / q) rounds up onto the next parameter for some j
+
+
+def test_a_new_parameter_rounded_onto_the_last_one_is_dropped_by_the_compiled_merge():
+    # a gap of one ulp split in two: 0.1 + ulp / 2 rounds to 0.1 (the old parameter), not
+    # past the next one, so the compiled merge drops it itself
+    tau = np.array([0.0, 0.1, 0.1 + np.spacing(0.1), 1.0])
+    xyz = np.array([[0.0, 0, 0], [0.01, 0, 0], [0.31, 0, 0], [0.32, 0, 0]])
+    done, tau_new, new = _refined(tau, xyz, 0.2)
+    assert not done and tau_new is not None  # no hand-over
+    ref_tau, ref_new = _refined_sorted(tau, xyz, 0.2)
+    np.testing.assert_array_equal(tau_new, ref_tau)
+    np.testing.assert_array_equal(new, ref_new)
+    np.testing.assert_array_equal(tau_new, tau)
+
+
+def test_parameters_out_of_order_go_to_the_sort():
+    tau = np.array([0.0, 0.6, 0.4, 1.0])
+    xyz = np.array([[0.0, 0, 0], [1.0, 0, 0], [1.1, 0, 0], [1.2, 0, 0]])
+    assert _refined(tau, xyz, 0.2)[1] is None
 
 
 def test_the_refinement_hands_over_where_a_new_parameter_rounds_onto_the_next():
@@ -171,14 +193,54 @@ def _sample_numpy(surf, P):
     return face, bary, out
 
 
-@pytest.mark.parametrize("k", [700, surface_mod._SERIAL_BELOW + 1])
-def test_the_sample_is_the_numpy_arithmetic_bit_for_bit_on_either_path(surface, k):
-    rng = np.random.default_rng(k)
-    rho = 0.999 * np.sqrt(rng.uniform(0.0, 1.0, k))
+def _domain_points(surface, k, seed):
+    """``k`` points over the whole circle domain: random ones inside, 20 on vertices
+    (several faces hold them) and 20 just outside the boundary by less than the locator's
+    snapping tolerance (snapped onto the nearest face)."""
+    rng = np.random.default_rng(seed)
+    R0 = float(np.max(np.linalg.norm(surface.uv, axis=1)))
+    rho = 0.97 * R0 * np.sqrt(rng.uniform(0.0, 1.0, k))
     th = rng.uniform(0.0, 2 * np.pi, k)
     P = np.column_stack([rho * np.cos(th), rho * np.sin(th)])
-    P[:20] = surface.uv[surface.F[:20, 0]]  # on vertices: several faces hold the point
+    P[:20] = surface.uv[surface.F[:20, 0]]
+    b = surface.uv[np.argsort(-np.linalg.norm(surface.uv, axis=1))[:20]]  # boundary vertices
+    P[20:40] = b * (1.0 + 0.5 * surface.locator.tol / np.linalg.norm(b, axis=1, keepdims=True))
+    return P
+
+
+def _brute_location_ok(surface, P, face, bary):
+    """Independent of the locator's grid: every point is located in a face whose
+    barycentrics are valid and rebuild it (within the snapping tolerance), and a point
+    clearly inside one face (every barycentric above 1e-9 by a scan of all faces) is in it."""
+    uv, F = surface.uv, surface.F
+    assert np.all(face >= 0)
+    np.testing.assert_allclose(bary.sum(axis=1), 1.0, atol=1e-12)
+    assert np.all(bary >= -1e-15)
+    rebuilt = np.einsum("ij,ijk->ik", bary, uv[F[face]])
+    assert np.all(np.linalg.norm(rebuilt - P, axis=1) <= surface.locator.tol + 1e-12)
+    A, B, C = uv[F[:, 0]], uv[F[:, 1]], uv[F[:, 2]]
+    inside = 0
+    for i in range(0, len(P), 7):
+        p = P[i]
+        w0 = (B[:, 0] - p[0]) * (C[:, 1] - p[1]) - (B[:, 1] - p[1]) * (C[:, 0] - p[0])
+        w1 = (C[:, 0] - p[0]) * (A[:, 1] - p[1]) - (C[:, 1] - p[1]) * (A[:, 0] - p[0])
+        w2 = (A[:, 0] - p[0]) * (B[:, 1] - p[1]) - (A[:, 1] - p[1]) * (B[:, 0] - p[0])
+        sgn = np.sign(w0 + w1 + w2)
+        clear = np.flatnonzero((w0 * sgn > 1e-9) & (w1 * sgn > 1e-9) & (w2 * sgn > 1e-9))
+        if clear.size == 1:
+            assert face[i] == clear[0]
+            inside += 1
+    return inside
+
+
+@pytest.mark.parametrize("k", [700, surface_mod._SERIAL_BELOW + 1])
+def test_the_sample_is_the_numpy_arithmetic_bit_for_bit_on_either_path(surface, k):
+    P = _domain_points(surface, k, seed=k)
     S = surface.sample(P)
+    assert len(np.unique(S.face)) > 0.1 * min(k, len(surface.F))  # spread over the domain
+    assert _brute_location_ok(surface, P, S.face, S.bary) > 50
+    snapped = S.bary[20:40]
+    assert np.all(snapped.min(axis=1) == 0.0)  # on a boundary edge of their face
     face, bary, out = _sample_numpy(surface, P)
     np.testing.assert_array_equal(S.face, face)
     np.testing.assert_array_equal(S.bary, bary)
@@ -197,9 +259,7 @@ def test_a_point_outside_the_domain_is_named(surface):
 def test_the_sample_keeps_its_rows_and_evaluates_the_new_ones_only(surface):
     rng = np.random.default_rng(11)
     k = 900
-    rho = 0.99 * np.sqrt(rng.uniform(0.0, 1.0, k))
-    th = rng.uniform(0.0, 2 * np.pi, k)
-    P = np.column_stack([rho * np.cos(th), rho * np.sin(th)])
+    P = _domain_points(surface, k, seed=11)
     new = rng.uniform(size=k) < 0.3
     kept = surface.sample(P[~new])
     S = surface.sample(P, keep=kept, new=new)
@@ -257,17 +317,42 @@ def test_the_polygon_limit_is_the_numpy_arithmetic_bit_for_bit():
     np.testing.assert_array_equal(poly.limit(theta[:50600].reshape(-1, 8)), _limit_numpy(poly, theta[:50600]).reshape(-1, 8))
 
 
-def _warp(closed, seed=2, m=65, n=33):
+def _warp(closed, seed=2, m=65, n=33, top=1.0):
+    """A random warp table; ``top > 1`` lets the middle levels reach past the far side."""
     rng = np.random.default_rng(seed)
-    G = np.sort(rng.uniform(size=(m, n)), axis=0)
+    G = np.sort(rng.uniform(0.0, top, size=(m, n)), axis=0)
     G[0], G[-1] = 0.0, 1.0
     tau = np.arange(n) / n if closed else np.linspace(0.0, 1.0, n)
     return Warp(tau, G, 0.05, lambda t: 0.9 + 0.05 * np.cos(7 * np.asarray(t)), closed)
 
 
+def _bilinear_numpy(G, s, tau, closed):
+    """The warp's bilinear table lookup in numpy (as ``Warp.fraction`` was, session 41)."""
+    m, n = G.shape
+    fs = np.clip(s, 0.0, 1.0) * (m - 1)
+    j0 = np.minimum(np.floor(fs).astype(np.int64), m - 2)
+    ws = fs - j0
+    if closed:
+        f = (tau - np.floor(tau)) * n
+        i0 = np.floor(f).astype(np.int64) % n
+        i1 = (i0 + 1) % n
+        wt = f - np.floor(f)
+    else:
+        f = np.clip(tau, 0.0, 1.0) * (n - 1)
+        i0 = np.minimum(np.floor(f).astype(np.int64), n - 2)
+        i1 = i0 + 1
+        wt = f - i0
+    lo = G[j0, i0] + wt * (G[j0, i1] - G[j0, i0])
+    hi = G[j0 + 1, i0] + wt * (G[j0 + 1, i1] - G[j0 + 1, i0])
+    return lo + ws * (hi - lo), (hi - lo) * (m - 1)
+
+
 def _offset_numpy(w, s, tau, end=None):
     """:meth:`Warp.offset` as it was (session 41)."""
-    x, dx = w.fraction(s, tau)
+    tau = np.asarray(tau, dtype=np.float64)
+    s = np.broadcast_to(np.asarray(s, dtype=np.float64), tau.shape)
+    x, dx = _bilinear_numpy(w.G, s.reshape(-1), tau.reshape(-1), w.closed)
+    x, dx = x.reshape(tau.shape), dx.reshape(tau.shape)
     if end is None:
         end = w.end(np.asarray(tau, dtype=np.float64))
     span = np.asarray(end, dtype=np.float64) - w.start
@@ -304,10 +389,12 @@ def test_warped_rings_and_turns_are_the_numpy_arithmetic_bit_for_bit():
     poly = _polygon(4)
     rings = domains.Rings(poly, 0.01, theta0=0.3, warp=_warp(True))
     turn = domains.SpiralTurn(poly, 0.2, 0.35, 0.01, theta0=0.3, warp=_warp(True))
+    past = domains.Rings(poly, 0.01, theta0=0.3, warp=_warp(True, top=1.4))  # held at the polygon
     tau = np.linspace(0.0, 1.0, 3001)
     for fam, lev in ((rings, 0.37), (rings, 1.0), (rings, np.linspace(0.3, 0.4, tau.size)),
-                     (turn, turn.r0 + tau * (turn.r1 - turn.r0))):
+                     (turn, turn.r0 + tau * (turn.r1 - turn.r0)), (past, 0.95)):
         P, t = fam.along(lev, tau)
+        assert fam._last[0] is tau and len(fam._last) == 4  # what rate reuses
         ref_P, ref_t, ref_dg = _ring_numpy(fam, lev, tau)
         np.testing.assert_array_equal(P, ref_P)
         np.testing.assert_array_equal(t, ref_t)
@@ -317,4 +404,25 @@ def test_warped_rings_and_turns_are_the_numpy_arithmetic_bit_for_bit():
         a = np.column_stack([np.cos(th), np.sin(th)])
         det = np.abs(a[:, 0] * t[:, 1] - a[:, 1] * t[:, 0])
         np.testing.assert_array_equal(rate, np.maximum(det, domains.MIN_CROSSING) * ref_dg)
-    assert np.any(np.linalg.norm(rings.along(1.0, tau)[0], axis=1) == poly.limit(rings.theta0 + domains.TWO_PI * tau))
+    lim = poly.limit(past.theta0 + domains.TWO_PI * tau)
+    raw, _ = past.warp.offset(0.95, tau, end=lim)
+    assert np.any(raw > lim)  # the branch that holds the ring at the polygon is reached
+    P, _ = past.along(0.95, tau)
+    np.testing.assert_array_equal(np.hypot(P[:, 0], P[:, 1])[raw > lim] <= lim[raw > lim] * (1 + 1e-15), True)
+
+
+def test_the_rise_follows_nan_to_num_where_it_is_infinite():
+    params = PathParams(tool_radius=4.0, scallop=0.01, tolerance=0.01)
+    planner = Planner(None, params, seg_len=0.2, rise_tol=np.inf)
+    S, t = _random_sample(2000, seed=1)
+    ls, reach = planner.allowed(S, t)
+    ref_ls, ref_reach = _allowed_numpy(planner, S, t)
+    np.testing.assert_array_equal(ls, ref_ls)
+    np.testing.assert_array_equal(reach, ref_reach)
+
+
+def test_a_huge_longest_step_does_not_overflow_where_there_is_no_rise():
+    params = PathParams(tool_radius=4.0, scallop=0.01, tolerance=0.01)
+    S, t = _random_sample(500, seed=2)
+    ls, _ = Planner(None, params, seg_len=0.2, max_step=1e200).allowed(S, t)
+    np.testing.assert_array_equal(ls, _allowed_numpy(Planner(None, params, seg_len=0.2), S, t)[0])

@@ -97,7 +97,8 @@ class DomainSurface:
         Raises
         ------
         PlanningError
-            A point lies outside the domain mesh (a planner bug or a hole in the map).
+            A point lies outside the domain mesh (a planner bug or a hole in the map), or
+            ``keep``'s rows do not fill the entries ``new`` leaves.
         """
         P = np.ascontiguousarray(np.asarray(P, dtype=np.float64).reshape(-1, 2))
         loc = self.locator

@@ -352,8 +352,9 @@ def _split_gaps(tau, xyz, seg_len):
     """:meth:`Planner.evaluate`'s refinement of the along-parameters, compiled: every gap
     whose 3D length exceeds ``seg_len`` gets ``ceil(length / seg_len) - 1`` new parameters
     evenly inside. Returns ``(n_long, tau_new, new, ok)``: the number of long gaps, the
-    parameters in order with their new-or-not mask, and whether the new parameters lie
-    strictly before the next old one (else the caller sorts, :func:`_refined_sorted`)."""
+    parameters in order with their new-or-not mask, and whether that order is the stable
+    sort's: the old parameters increasing and every new one strictly before the next old
+    one (else the caller sorts, :func:`_refined_sorted`)."""
     k = tau.shape[0]
     n_long = 0
     total = k
@@ -377,6 +378,8 @@ def _split_gaps(tau, xyz, seg_len):
             last = t0
         if i == k - 1:
             break
+        if tau[i + 1] < t0:  # (not increasing: the sort's order is not this one)
+            ok = False
         d = _gap_length(xyz, i)
         if d > seg_len:
             q = int(np.ceil(d / seg_len))
@@ -569,7 +572,8 @@ class Planner:
         c = np.ascontiguousarray
         return allowed_across(c(S.I, dtype=np.float64), c(S.II, dtype=np.float64), c(S.n, dtype=np.float64),
                               c(t, dtype=np.float64), float(p.scallop), float(p.tool_radius), float(p.stock), cap,
-                              self.rise_tol, self.max_step ** 2, UNDERCUT_NZ, self._flat)
+                              self.rise_tol, self.max_step * self.max_step if self.rise_tol > 0 else 0.0,
+                              UNDERCUT_NZ, self._flat)
 
     def domain_steps(self, c: Curve) -> np.ndarray:
         """Step in ``s`` allowed at each sample: ``l_s |r_t| / (sqrt(EG - F^2) rate)``."""

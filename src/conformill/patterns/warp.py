@@ -63,19 +63,9 @@ def _bilinear_one(G, s, t, closed):
 
 
 @njit(cache=True, nogil=True)
-def _bilinear(G, s, tau, closed):
-    """:func:`_bilinear_one` at levels ``s`` and along-parameters ``tau``."""
-    k = tau.shape[0]
-    x = np.empty(k)
-    dx = np.empty(k)
-    for p in range(k):
-        x[p], dx[p] = _bilinear_one(G, s[p], tau[p], closed)
-    return x, dx
-
-
-@njit(cache=True, nogil=True)
 def _offsets(G, s, tau, closed, start, end):
-    """:meth:`Warp.offset` per point: ``start + x (end - start)`` and ``dx (end - start)``."""
+    """:meth:`Warp.offset` per point: ``start + x (end - start)`` and ``dx (end - start)``,
+    with ``(x, dx/ds)`` the bilinear interpolation of the table (:func:`_bilinear_one`)."""
     k = tau.shape[0]
     g = np.empty(k)
     dg = np.empty(k)
@@ -111,14 +101,6 @@ class Warp:
         self.start = float(start)
         self.end = end
         self.closed = bool(closed)
-
-    def fraction(self, s, tau):
-        """Fraction ``x`` and its derivative ``dx/ds`` at levels ``s`` and ``tau`` (bilinear)."""
-        tau = np.ascontiguousarray(tau, dtype=np.float64)
-        # a writable copy: a read-only view (broadcast_to) would compile another version
-        s = np.array(np.broadcast_to(np.asarray(s, dtype=np.float64), tau.shape))
-        x, dx = _bilinear(self.G, s.reshape(-1), tau.reshape(-1), self.closed)
-        return x.reshape(tau.shape), dx.reshape(tau.shape)
 
     def offset(self, s, tau, end=None):
         """Base offsets ``g`` and ``dg/ds`` at levels ``s`` (scalar or per ``tau``).

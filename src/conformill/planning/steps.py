@@ -260,6 +260,9 @@ def side_interval_stock(h, r, kappa, stock: float, cap: float | None = None):
     return ls, reach
 
 
+_FLOAT_MAX = float(np.finfo(np.float64).max)
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def allowed_across(I, II, n, t, scallop, r, stock, cap, rise_tol, max_step2, undercut_nz, flat):
     """The planner's allowed side interval at surface samples, in one compiled pass.
@@ -317,7 +320,11 @@ def allowed_across(I, II, n, t, scallop, r, stock, cap, rise_tol, max_step2, und
             rise = along * max_step2 / 8.0
             if rise_tol < rise:  # (np.minimum: NaN stays NaN)
                 rise = rise_tol
-            h = h - (rise_tol if rise != rise else rise)
+            if rise != rise:  # (np.nan_to_num: NaN -> rise_tol, +inf -> the largest float)
+                rise = rise_tol
+            elif rise == np.inf:
+                rise = _FLOAT_MAX
+            h = h - rise
         if stock == 0.0:
             w = _side_interval_one(h, kap, r)
             ok = math.isfinite(kap) and r * kap < 1.0

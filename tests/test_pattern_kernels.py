@@ -12,7 +12,6 @@ replaced, for exact equality (NaN where NaN), on inputs that reach every branch.
 import numpy as np
 import pytest
 
-from conformill.geometry import surface as surface_mod
 from conformill.geometry.differential import interpolate
 from conformill.geometry.surface import DomainSurface, SurfaceSample
 from conformill.mesh import synthetic
@@ -233,8 +232,8 @@ def _brute_location_ok(surface, P, face, bary):
     return inside
 
 
-@pytest.mark.parametrize("k", [700, surface_mod._SERIAL_BELOW + 1])
-def test_the_sample_is_the_numpy_arithmetic_bit_for_bit_on_either_path(surface, k):
+@pytest.mark.parametrize("k", [700, 20000])
+def test_the_sample_is_the_numpy_arithmetic_bit_for_bit(surface, k):
     P = _domain_points(surface, k, seed=k)
     S = surface.sample(P)
     assert len(np.unique(S.face)) > 0.1 * min(k, len(surface.F))  # spread over the domain
@@ -247,6 +246,17 @@ def test_the_sample_is_the_numpy_arithmetic_bit_for_bit_on_either_path(surface, 
     for got, cols in ((S.xyz, slice(0, 3)), (S.n, slice(3, 6)), (S.I, slice(6, 9)), (S.II, slice(9, 12))):
         np.testing.assert_array_equal(got, out[:, cols])
     np.testing.assert_allclose(np.linalg.norm(S.n, axis=1), 1.0, rtol=1e-12)
+
+
+@pytest.mark.parametrize("k", [0, 1, 2])
+def test_a_sample_of_few_points(surface, k):
+    P = _domain_points(surface, 700, seed=5)[100:100 + k]
+    S = surface.sample(P)
+    face, bary, out = _sample_numpy(surface, P)
+    np.testing.assert_array_equal(S.face, face)
+    np.testing.assert_array_equal(S.bary, bary)
+    np.testing.assert_array_equal(np.column_stack([S.xyz, S.n, S.I, S.II]), out)
+    np.testing.assert_array_equal(S.uv, P)
 
 
 def test_a_point_outside_the_domain_is_named(surface):
@@ -271,6 +281,20 @@ def test_the_sample_keeps_its_rows_and_evaluates_the_new_ones_only(surface):
     marked = SurfaceSample(**{f: getattr(kept, f).copy() for f in ("uv", "face", "bary", "xyz", "n", "I", "II")})
     marked.xyz[:, 2] = -7.0
     assert np.all(surface.sample(P, keep=marked, new=new).xyz[~new, 2] == -7.0)
+
+
+def test_one_kernel_serves_a_plain_sample_and_a_refined_one(surface):
+    """A fresh install compiles the sample's kernel once: the stand-ins for no kept rows
+    are typed as a real sample's kept rows."""
+    from conformill.geometry.surface import _sample_rows
+
+    P = _domain_points(surface, 700, seed=9)
+    S = surface.sample(P[:300])
+    compiled = len(_sample_rows.signatures)
+    new = np.zeros(700, dtype=bool)
+    new[300:] = True
+    surface.sample(P, keep=S, new=new)
+    assert len(_sample_rows.signatures) == compiled  # no second version for the refined one
 
 
 def test_kept_rows_must_match_the_mask(surface):

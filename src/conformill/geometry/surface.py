@@ -7,16 +7,17 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from conformill.errors import PlanningError
 from conformill.geometry.differential import normal_curvature, perpendicular_direction, surface_frame
 from conformill.geometry.locate import Locator, _locate_one
 
-#: Below this many points :meth:`DomainSurface.sample` works in the calling thread: the
-#: planner samples curves of about a thousand points, thousands of times, where waking
-#: numba's threads costs more than the work (the same values either way).
-_SERIAL_BELOW = 8192
+#: Stand-ins for the kept rows of a sample that keeps none (:meth:`DomainSurface.sample`):
+#: column views of a two-row packed array (never read), typed as the kept rows of a real
+#: sample are (an empty or one-row view would count as contiguous), so that one compiled
+#: kernel serves both calls (5.3 s of compiling on a fresh install became 1.7 s).
+_NONE_KEPT = np.zeros((2, 12))
 
 
 @dataclass(frozen=True, eq=False)
@@ -104,27 +105,29 @@ class DomainSurface:
         loc = self.locator
         args = (loc.uv, loc.F, loc._ptr, loc._items, loc._lo, loc._inv, loc._nx, loc._ny, loc.tol * loc.tol,
                 self._pack)
-        uv = P
         face = np.empty(len(P), dtype=np.int64)
         bary = np.empty((len(P), 3))
         out = np.empty((len(P), self._pack.shape[1]))
+        uv = np.empty_like(P)
         if keep is None:
-            (_sample_serial if len(P) < _SERIAL_BELOW else _sample_parallel)(P, *args, face, bary, out)
-            at = P
+            n0 = _NONE_KEPT
+            kept = (np.empty((0, 2)), np.empty(0, dtype=np.int64), np.empty((0, 3)), n0[:, 0:3], n0[:, 3:6],
+                    n0[:, 6:9], n0[:, 9:12])
+            new = np.ones(len(P), dtype=bool)
         else:
             new = np.asarray(new, dtype=bool)
             if new.shape != (len(P),) or len(P) - np.count_nonzero(new) != len(keep.face):
                 raise PlanningError(f"sample: {len(keep.face)} kept rows and {np.count_nonzero(new)} new ones "
                                     f"for {len(P)} points")
-            uv = np.empty_like(P)
-            _sample_merge(P, new, keep.uv, keep.face, keep.bary, keep.xyz, keep.n, keep.I, keep.II, *args, uv,
-                          face, bary, out)
-            at = uv
+            kept = (keep.uv, keep.face, keep.bary, keep.xyz, keep.n, keep.I, keep.II)
+        # (serial: the planner samples curves of about a thousand points, thousands of
+        # times, where waking numba's threads costs more than the work)
+        _sample_rows(P, new, *kept, *args, uv, face, bary, out)
         bad = np.flatnonzero(face < 0)
         if bad.size:
             raise PlanningError(
                 f"{bad.size} domain point(s) fall outside the parameter mesh, e.g. "
-                f"{at[bad[0]].round(6).tolist()}"
+                f"{uv[bad[0]].round(6).tolist()}"
             )
         return SurfaceSample(uv=uv, face=face, bary=bary, xyz=out[:, 0:3], n=out[:, 3:6], I=out[:, 6:9],
                              II=out[:, 9:12])
@@ -157,22 +160,10 @@ def _sample_one(q, P, uv, F, ptr, items, lo, inv_cell, nx, ny, tol2, pack, face,
 
 
 @njit(cache=True, nogil=True)
-def _sample_serial(P, uv, F, ptr, items, lo, inv_cell, nx, ny, tol2, pack, face, bary, out):
-    for q in range(P.shape[0]):
-        _sample_one(q, P, uv, F, ptr, items, lo, inv_cell, nx, ny, tol2, pack, face, bary, out)
-
-
-@njit(cache=True, nogil=True, parallel=True)
-def _sample_parallel(P, uv, F, ptr, items, lo, inv_cell, nx, ny, tol2, pack, face, bary, out):
-    for q in prange(P.shape[0]):
-        _sample_one(q, P, uv, F, ptr, items, lo, inv_cell, nx, ny, tol2, pack, face, bary, out)
-
-
-@njit(cache=True, nogil=True)
-def _sample_merge(P, new, kuv, kface, kbary, kxyz, kn, kI, kII, uv, F, ptr, items, lo, inv_cell, nx, ny, tol2,
-                  pack, uv_out, face, bary, out):
-    """:meth:`DomainSurface.sample` with ``keep``: the rows at ``new`` evaluated, the kept
-    rows copied in order."""
+def _sample_rows(P, new, kuv, kface, kbary, kxyz, kn, kI, kII, uv, F, ptr, items, lo, inv_cell, nx, ny, tol2,
+                 pack, uv_out, face, bary, out):
+    """:meth:`DomainSurface.sample`: the rows at ``new`` evaluated (:func:`_sample_one`),
+    the kept rows copied in order."""
     j = 0
     for q in range(P.shape[0]):
         if new[q]:

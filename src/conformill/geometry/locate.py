@@ -68,6 +68,13 @@ def _closest_on_segment(px, py, ax, ay, bx, by):
 
 
 @njit(cache=True, nogil=True, inline="always")
+def _corners(uv, F, f):
+    """The parameter coordinates of face ``f``'s three corners."""
+    a, b, c = F[f, 0], F[f, 1], F[f, 2]
+    return uv[a, 0], uv[a, 1], uv[b, 0], uv[b, 1], uv[c, 0], uv[c, 1]
+
+
+@njit(cache=True, nogil=True, inline="always")
 def _locate_one(px, py, uv, F, ptr, items, lo, inv_cell, nx, ny, tol2):
     """Face and barycentrics of one point, ``(face, b0, b1, b2)``: ``(-1, nan, nan, nan)``
     outside the domain (see :meth:`Locator.locate`)."""
@@ -80,10 +87,7 @@ def _locate_one(px, py, uv, F, ptr, items, lo, inv_cell, nx, ny, tol2):
     c = int(fj) * nx + int(fi)
     for t in range(ptr[c], ptr[c + 1]):
         f = items[t]
-        a, b, cc = F[f, 0], F[f, 1], F[f, 2]
-        ax, ay = uv[a, 0], uv[a, 1]
-        bx, by = uv[b, 0], uv[b, 1]
-        cx, cy = uv[cc, 0], uv[cc, 1]
+        ax, ay, bx, by, cx, cy = _corners(uv, F, f)
         # signed sub-areas: b_k = area opposite corner k / total
         w0 = (bx - px) * (cy - py) - (by - py) * (cx - px)
         w1 = (cx - px) * (ay - py) - (cy - py) * (ax - px)
@@ -104,10 +108,7 @@ def _locate_one(px, py, uv, F, ptr, items, lo, inv_cell, nx, ny, tol2):
     best_b2 = 0.0
     for t in range(ptr[c], ptr[c + 1]):
         f = items[t]
-        a, b, cc = F[f, 0], F[f, 1], F[f, 2]
-        ax, ay = uv[a, 0], uv[a, 1]
-        bx, by = uv[b, 0], uv[b, 1]
-        cx, cy = uv[cc, 0], uv[cc, 1]
+        ax, ay, bx, by, cx, cy = _corners(uv, F, f)
         d0, t0 = _closest_on_segment(px, py, ax, ay, bx, by)
         d1, t1 = _closest_on_segment(px, py, bx, by, cx, cy)
         d2, t2 = _closest_on_segment(px, py, cx, cy, ax, ay)

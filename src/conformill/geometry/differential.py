@@ -573,15 +573,21 @@ def _flat(a: np.ndarray, shape) -> np.ndarray:
     return np.broadcast_to(a, shape).flatten()
 
 
+@njit(cache=True, nogil=True, inline="always", error_model="numpy")
+def curvature_in(E, F, G, L, M, N, a, b):
+    """The normal curvature of one sample in the domain direction ``(a, b)`` (the formula of
+    :func:`normal_curvature`; NaN where the first form is not positive there)."""
+    num = L * a * a + 2.0 * M * a * b + N * b * b
+    den = E * a * a + 2.0 * F * a * b + G * b * b
+    return num / den if den > 0 else np.nan
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def _normal_curvature(E, F, G, L, M, N, du, dv):
     """:func:`normal_curvature` over flat arrays (compiled; NaN where the form is not positive)."""
     out = np.empty(E.size)
     for i in range(E.size):
-        a, b = du[i], dv[i]
-        num = L[i] * a * a + 2.0 * M[i] * a * b + N[i] * b * b
-        den = E[i] * a * a + 2.0 * F[i] * a * b + G[i] * b * b
-        out[i] = num / den if den > 0 else np.nan
+        out[i] = curvature_in(E[i], F[i], G[i], L[i], M[i], N[i], du[i], dv[i])
     return out
 
 

@@ -99,8 +99,8 @@ def _ring_points(c, s, lim, G, lev, tau, closed, start):
         span = lim[p] - start
         rho = start + x * span
         dg[p] = dx * span
-        if not (rho <= lim[p]):  # (np.minimum: NaN from either side)
-            rho = lim[p] if (rho > lim[p] or lim[p] != lim[p]) else rho
+        if rho > lim[p] or lim[p] != lim[p]:  # (np.minimum: a NaN limit wins, a NaN rho stays)
+            rho = lim[p]
         P[p, 0] = rho * c[p]
         P[p, 1] = rho * s[p]
     return P, dg

@@ -62,6 +62,7 @@ import numpy as np
 from numba import njit
 
 from conformill.errors import PlanningError
+from conformill.geometry.differential import curvature_in
 from conformill.types import PathParams
 
 
@@ -305,16 +306,11 @@ def allowed_across(I, II, n, t, scallop, r, stock, cap, rise_tol, max_step2, und
         E, F, G = I[i, 0], I[i, 1], I[i, 2]
         L, M, N = II[i, 0], II[i, 1], II[i, 2]
         tu, tv = t[i, 0], t[i, 1]
-        a = -(F * tu + G * tv)
-        b = E * tu + F * tv
-        num = L * a * a + 2.0 * M * a * b + N * b * b
-        den = E * a * a + 2.0 * F * a * b + G * b * b
-        kap = num / den if den > 0 else np.nan
+        # across the path: perpendicular_direction's (-(F tu + G tv), E tu + F tv)
+        kap = curvature_in(E, F, G, L, M, N, -(F * tu + G * tv), E * tu + F * tv)
         h = scallop
         if rise_tol > 0:
-            num = L * tu * tu + 2.0 * M * tu * tv + N * tv * tv
-            den = E * tu * tu + 2.0 * F * tu * tv + G * tv * tv
-            along = num / den if den > 0 else np.nan
+            along = curvature_in(E, F, G, L, M, N, tu, tv)
             if along < 0.0:  # (np.maximum: NaN stays NaN)
                 along = 0.0
             rise = along * max_step2 / 8.0
@@ -325,22 +321,19 @@ def allowed_across(I, II, n, t, scallop, r, stock, cap, rise_tol, max_step2, und
             elif rise == np.inf:
                 rise = _FLOAT_MAX
             h = h - rise
-        if stock == 0.0:
-            w = _side_interval_one(h, kap, r)
-            ok = math.isfinite(kap) and r * kap < 1.0
-            if cap < w:
-                w = cap
-        else:
+        # with stock, the curvature of the offset the ball rolls on (side_interval_stock)
+        kk, good, fs = kap, True, 1.0
+        if stock != 0.0:
             f = 1.0 - kap * stock
             good = math.isfinite(f) and f > 0.0
             fs = f if good else 1.0
             kk = kap / fs if good else np.nan
-            w = _side_interval_one(h, kk, r)
-            ok = math.isfinite(kk) and r * kk < 1.0 and good
-            if cap < w:
-                w = cap
-            if ok:
-                w = w / fs
+        w = _side_interval_one(h, kk, r)
+        ok = math.isfinite(kk) and r * kk < 1.0 and good
+        if cap < w:
+            w = cap
+        if stock != 0.0 and ok:
+            w = w / fs
         if n[i, 2] < undercut_nz and flat > w:  # (np.maximum: NaN stays NaN)
             w = flat
         ls[i] = w

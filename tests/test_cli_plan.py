@@ -346,6 +346,24 @@ def test_tool_number_option(part, tmp_path, capsys):
     assert rc == 2 and "--tool-number" in capsys.readouterr().err and not (tmp_path / "u.nc").exists()
 
 
+def test_spindle_option_reaches_the_header_the_report_and_the_summary(part, tmp_path, capsys):
+    out, rep = tmp_path / "s.nc", tmp_path / "s.json"
+    assert main(["plan", str(part), "--pattern", "contour", "--tool-radius", "4", "--scallop", "0.3", "-o", str(out),
+                 "--report", str(rep), "--spindle", "12000"]) == 0
+    lines = out.read_text().splitlines()
+    assert "M3 S12000" in lines and "(param spindle: M3 S12000: started before the first move)" in lines
+    assert json.loads(rep.read_text())["job"]["spindle"] == 12000
+    assert "spindle not started" not in capsys.readouterr().out
+    assert main(["plan", str(part), "--pattern", "contour", "--tool-radius", "4", "--scallop", "0.3", "-o", str(out),
+                 "--report", str(rep)]) == 0
+    lines = out.read_text().splitlines()
+    assert not [ln for ln in lines if ln.split()[0] in ("M3", "M4")]  # (M30 ends it)
+    assert ("(param spindle: not started by this program [no --spindle]: start it by hand before running it)"
+            in lines)
+    assert json.loads(rep.read_text())["job"]["spindle"] is None
+    assert "spindle not started by the program (--spindle RPM)" in capsys.readouterr().out
+
+
 def test_coolant_option(part, tmp_path, capsys):
     out, rep = tmp_path / "c.nc", tmp_path / "c.json"
     assert main(["plan", str(part), "--pattern", "contour", "--tool-radius", "4", "--scallop", "0.3", "-o", str(out),

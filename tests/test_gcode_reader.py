@@ -253,3 +253,21 @@ def test_plain_linear_moves_read_as_the_general_parse_reads_them():
     assert np.allclose(a.points[2:5], moves)
     assert np.allclose(a.points[5], [-3.0, 3.0, 1.0])  # the G91 move, from (-4, 2, 0)
     assert np.allclose(a.points[-2], [25.4, 50.8, 76.2])  # G20: inches
+
+
+@pytest.mark.parametrize("text, blocks, first", [
+    # stopped when the program starts: every feed block counts, the plunge first
+    ("G21 G90\nG0 X0 Y0 Z5\nG1 Z0 F100\nG1 X1.0000 Y0.0000 Z0.0000\nG2 X2 Y0 I0.5 J0\nG0 Z5\nM30\n", 3, 3),
+    # started before the cut (M3 or M4, with or without a leading zero): none
+    ("G21 G90\nM3 S1000\nG0 X0 Y0 Z5\nG1 Z0 F100\nG1 X1.0000 Y0.0000 Z0.0000\nM5\nM30\n", 0, 0),
+    ("G21 G90\nM04 S1000\nG0 X0 Y0 Z5\nG1 Z0 F100\nX1\nM5\nM30\n", 0, 0),
+    # in one block the spindle words act before the motion
+    ("G21 G90\nG0 X0 Y0 Z5\nG1 Z0 F100 M3 S900\nG1 X1 M5\nG1 X2\nM30\n", 2, 4),
+    # M5 stops it, M3 starts it again; the fast path (G1 X Y Z lines) counts too
+    ("G21 G90\nM3 S1\nG0 X0 Y0 Z5\nG1 Z0 F100\nM5\nG1 X1.0000 Y0.0000 Z0.0000\nM3\nG1 X2.0000 Y0.0000 Z0.0000\n", 1, 6),
+    # the program's end stops it after the block's motion; a rapid never counts
+    ("G21 G90\nM3 S1\nG0 X0 Y0 Z5\nG1 Z0 F100 M30\nG1 X1\nG0 Z9\n", 1, 5),
+])
+def test_feed_blocks_with_the_spindle_stopped(text, blocks, first):
+    p = read_gcode(text)
+    assert (p.spindle_off_feeds, p.spindle_off_line) == (blocks, first)

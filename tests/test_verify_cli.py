@@ -161,3 +161,25 @@ def test_path_control_is_reported_not_simulated(files, tmp_path, capsys):
     strip = ("path_control", "seconds", "program")
     assert {k: v for k, v in rep.items() if k not in strip} == \
         {k: v for k, v in runs["none"][1].items() if k not in strip}
+
+
+def test_feed_with_the_spindle_stopped_is_reported(files, tmp_path, capsys):
+    mesh, program = files
+    nc = program("raster.nc")
+    rows = nc.read_text().count("G1 Z")
+    started = tmp_path / "started.nc"
+    started.write_text(nc.read_text().replace("G21 G90\n", "G21 G90 M3 S10000\n"))  # the same line numbers
+    runs = {}
+    for p in (nc, started):
+        rep = tmp_path / f"{p.stem}.json"
+        assert main(["verify", str(mesh), str(p), "-r", "3", "--scallop", "0.05", "--samples", "20000",
+                     "--report", str(rep)]) == 0
+        runs[p.stem] = capsys.readouterr().out, json.loads(rep.read_text())
+    out, rep = runs["raster"]
+    assert rep["spindle"] == {"feed_blocks_stopped": 2 * rows, "first_line": 5}
+    assert f"spindle: {2 * rows} feed block(s) run with the spindle stopped" in out and "line 5" in out
+    out, rep2 = runs["started"]
+    assert rep2["spindle"] == {"feed_blocks_stopped": 0, "first_line": None} and "spindle:" not in out
+    # a warning, not a verdict: the figures are the same
+    strip = ("spindle", "seconds", "program")
+    assert {k: v for k, v in rep.items() if k not in strip} == {k: v for k, v in rep2.items() if k not in strip}

@@ -637,7 +637,7 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
                 "fit": job.fit, "pencil": job.pencil, "pencil_density": job.pencil_density,
                 "pencil_search": job.pencil_search, "pencil_left": job.pencil_left,
                 "blend": "off" if job.blend_tolerance is None else job.blend_tolerance,
-                "tool_number": job.tool_number, "coolant": job.coolant, "stock": stock},
+                "tool_number": job.tool_number, "coolant": job.coolant, "spindle": job.spindle, "stock": stock},
         "orientation": orient_info,
         "parameterization": {"boundary": param.kind, "domain": param.domain, "corners": param.corners,
                              "solver": param.solver, "residual": param.residual, "fallbacks": param.fallbacks,

@@ -23,7 +23,9 @@ def add_arguments(p) -> None:
                         "electrode's gap), above minus the tool radius. --verify judges it on the offset")
     p.add_argument("--feed", type=float, default=1000.0, metavar="F", help="cutting feed, mm/min (1000)")
     p.add_argument("--plunge-feed", type=float, default=None, metavar="F", help="plunge feed (feed/3)")
-    p.add_argument("--spindle", type=float, default=None, metavar="RPM", help="spindle speed (M3 S...)")
+    p.add_argument("--spindle", type=float, default=None, metavar="RPM",
+                   help="spindle speed: M3 S<RPM> before the first move (default none: the program does not start "
+                        "the spindle, and its header and summary say so)")
     p.add_argument("--safe-z", type=float, default=None, metavar="Z", help="rapid height (part top + 5)")
     p.add_argument("--scale", type=float, default=1.0, metavar="S", help="multiply coordinates (to mm)")
     p.add_argument("--orient", choices=["none", "auto"], default="none",
@@ -332,6 +334,7 @@ def _header(args, job, result) -> dict:
         "path control": _control(job.blend_tolerance)[1],
         "tool length": ("G49: the work offset holds it [tool tip touched off]" if job.tool_number is None
                         else f"T{job.tool_number} M6 G43 H{job.tool_number}: from the tool table"),
+        "spindle": _spindle_text(job.spindle),
     }
     if job.coolant is not None:  # only then: the programs without it keep their bytes
         header["coolant"] = job.coolant
@@ -464,6 +467,14 @@ def _control(blend) -> tuple[str, str]:
     return block, f"{block}: corners rounded by at most {blend:g} mm, moves not merged"
 
 
+def _spindle_text(rpm) -> str:
+    """The header's and the summary's account of the spindle: started by the program
+    (``--spindle``), or to be started by hand."""
+    if rpm is None:
+        return "not started by this program [no --spindle]: start it by hand before running it"
+    return f"M3 S{rpm:g}: started before the first move"
+
+
 def _summary(rep: dict, out: str) -> None:
     pr, pa, q = rep["program"], rep["paths"], rep["parameterization"]["quality"]
     lines = [
@@ -476,7 +487,8 @@ def _summary(rep: dict, out: str) -> None:
         f"{(rep['side_step']['realised_mm']['mean'] or 0):.3f} mm",
         f"  program           feed {pr['feed_length_mm'] / 1000:.2f} m, rapid {pr['rapid_length_mm'] / 1000:.2f} m, "
         f"{pr['machining_time_min']:.1f} min at feed, {pr['n_lines']} lines, "
-        f"{_control(None if rep['job']['blend'] == 'off' else rep['job']['blend'])[0]}",
+        f"{_control(None if rep['job']['blend'] == 'off' else rep['job']['blend'])[0]}"
+        + ("" if rep["job"].get("spindle") is not None else "; spindle not started by the program (--spindle RPM)"),
         *([f"  pencil            {rep['pencil']['passes']} pass(es), {rep['pencil']['cl_points']} CL points, "
            f"{rep['pencil']['feed_mm'] / 1000:.2f} m from {_pencil_source(rep['pencil'])}"] if rep.get("pencil") else []),
         f"  reachability      undercut {100 * rep['reachability']['undercut_share']:.2f}%, concave below R "

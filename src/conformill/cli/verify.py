@@ -140,12 +140,24 @@ def table(summary: dict) -> str:
         if "unset" in modes:
             out.append("  unset: the machine's own mode applies (LinuxCNC's G64 without P may round corners by any "
                        "amount)")
+    sp = g.get("spindle")
+    if sp and sp["feed_blocks_stopped"]:
+        out.append(f"spindle: {sp['feed_blocks_stopped']} feed block(s) run with the spindle stopped (no M3/M4 before "
+                   f"them, or after an M5), the first on line {sp['first_line']}: start it by hand before running "
+                   f"the program")
     if g.get("holder") is not None:
         out.append(holder_text(g["holder"]))
     if (g["thresholds"]["scallop"] is not None or g["thresholds"]["gouge"] is not None
             or (g.get("holder") or {}).get("stick_out") is not None):
         out.append("PASS" if g["pass"] else "FAIL: " + "; ".join(g["failures"]))
     return "\n".join(out)
+
+
+def spindle_summary(program) -> dict:
+    """The report's ``spindle`` entry of a program read by :func:`conformill.verify.gcode.read_gcode`:
+    how many feed blocks run with the spindle stopped, and the line of the first (``None``: none)."""
+    return {"feed_blocks_stopped": int(program.spindle_off_feeds),
+            "first_line": int(program.spindle_off_line) if program.spindle_off_feeds else None}
 
 
 def _xyz(p) -> str:
@@ -271,7 +283,7 @@ def _check(args) -> int:
             summary["pass"] = False
     seconds = time.perf_counter() - t0
     summary.update(mesh=mesh.name, program=program.source, faces=mesh.n_faces, scale=args.scale, seconds=seconds,
-                   path_control=list(program.path_modes))
+                   path_control=list(program.path_modes), spindle=spindle_summary(program))
     if args.report:
         from conformill.output.report import write_json
 

@@ -13,10 +13,14 @@ What is read
 - Modal motion: a block with coordinates and no motion word continues the current motion mode.
 - Units ``G20`` (inch) / ``G21`` (mm): everything is converted to mm. Distance modes ``G90`` /
   ``G91``. ``F`` (feed, converted to mm/min).
-- Ignored: comments ``( ... )`` and after ``;``, line numbers ``N``, ``%`` lines, ``M S T H D``
-  words, ``O`` program names in comments, and the modal G-codes that do not move the tool tip
-  in program coordinates: ``G4 G17 G40 G43 G49 G54-G59.3 G61 G61.1 G64 G80 G90.1 G91.1 G93
-  G94 G98 G99``.
+- The spindle: ``M3``/``M4`` start it, ``M5``, ``M2`` and ``M30`` stop it (it is stopped when
+  the program starts); feed moves made while it is stopped are counted
+  (:attr:`Program.spindle_off_feeds`), not refused. In a block, the spindle words act
+  before its motion, ``M2``/``M30`` after it (RS274NGC's order of execution).
+- Ignored: comments ``( ... )`` and after ``;``, line numbers ``N``, ``%`` lines, the other
+  ``M`` words and ``S T H D`` words, ``O`` program names in comments, and the modal G-codes
+  that do not move the tool tip in program coordinates: ``G4 G17 G40 G43 G49 G54-G59.3 G61
+  G61.1 G64 G80 G90.1 G91.1 G93 G94 G98 G99``.
 - Block delete: lines starting with ``/`` are skipped (the switch is on), unless
   ``block_delete=False``.
 
@@ -114,6 +118,11 @@ class Program:
         P0"``, ``"G64 Q0.1"``) lets LinuxCNC round corners by any amount
         (:func:`unbounded_mode`). Recorded, not simulated: the moves are taken as
         programmed.
+    spindle_off_feeds : int
+        Feed moves (G1/G2/G3 blocks) made while the spindle is stopped: before the first
+        ``M3``/``M4``, or after an ``M5``.
+    spindle_off_line : int
+        1-based line of the first of them (0: none).
     """
 
     points: np.ndarray
@@ -124,6 +133,8 @@ class Program:
     source: str = "<text>"
     units: str = "mm"
     path_modes: tuple = ()
+    spindle_off_feeds: int = 0
+    spindle_off_line: int = 0
 
     def __len__(self) -> int:
         return int(self.points.shape[0])
@@ -264,6 +275,9 @@ def read_gcode(source, chord_tol: float = 0.001, start=None, block_delete: bool 
     units = "mm"
     path_mode = "unset"
     path_modes: list = []
+    spindle = False  # stopped when the program starts
+    off_feeds = 0  # feed blocks while it is stopped
+    off_line = 0  # the first of them
 
     for lineno, raw in enumerate(text.splitlines(), start=1):
         s = raw.strip()
@@ -278,6 +292,9 @@ def read_gcode(source, chord_tol: float = 0.001, start=None, block_delete: bool 
                 fed.append(feed)
                 if path_mode not in path_modes:
                     path_modes.append(path_mode)
+                if not spindle:
+                    off_feeds += 1
+                    off_line = off_line or lineno
                 pos = target
                 continue
         if not s or s.startswith("%"):
@@ -299,10 +316,13 @@ def read_gcode(source, chord_tol: float = 0.001, start=None, block_delete: bool 
             raise _error(lineno, raw, f"cannot read {bad!r}")
         gs = []
         vals = {}
+        ms = []
         for letter, num in words:
             if letter == "G":
                 gs.append(round(float(num), 1))
-            elif letter in "MSTNHDO":
+            elif letter == "M":
+                ms.append(round(float(num), 1))
+            elif letter in "STNHDO":
                 if letter == "O":
                     raise _error(lineno, raw, "subroutines (O words) are not supported")
                 continue
@@ -350,6 +370,10 @@ def read_gcode(source, chord_tol: float = 0.001, start=None, block_delete: bool 
             path_mode = "G61.1" if 61.1 in gs else "G61"
         elif 64.0 in gs:
             path_mode = "G64" + "".join(f" {k}{vals[k] * scale:g}" for k in "PQ" if k in vals)
+        if 3.0 in ms or 4.0 in ms:  # the spindle words act before the block's motion
+            spindle = True
+        if 5.0 in ms:
+            spindle = False
         if "F" in vals:
             if vals["F"] < 0:
                 raise _error(lineno, raw, "negative feed rate")
@@ -362,6 +386,8 @@ def read_gcode(source, chord_tol: float = 0.001, start=None, block_delete: bool 
                 raise _error(lineno, raw, "arc without an end point")
             if any(k in vals for k in "IJKR"):
                 raise _error(lineno, raw, "arc words without a motion")
+            if 2.0 in ms or 30.0 in ms:  # program end
+                spindle = False
             continue
         if mode is None:
             raise _error(lineno, raw, "coordinates without a motion mode (G0/G1/G2/G3)")
@@ -422,8 +448,14 @@ def read_gcode(source, chord_tol: float = 0.001, start=None, block_delete: bool 
             mot.append(RAPID if mode == 0 else FEED)
             lin.append(lineno)
             fed.append(feed)
-        if mode != 0 and path_mode not in path_modes:  # a feed move (G1, or an arc)
-            path_modes.append(path_mode)
+        if mode != 0:  # a feed move (G1, or an arc)
+            if path_mode not in path_modes:
+                path_modes.append(path_mode)
+            if not spindle:
+                off_feeds += 1
+                off_line = off_line or lineno
+        if 2.0 in ms or 30.0 in ms:  # program end, after the block's motion
+            spindle = False
         pos = target
 
     if pts:
@@ -454,4 +486,4 @@ def read_gcode(source, chord_tol: float = 0.001, start=None, block_delete: bool 
             first = known[0] if len(known) else len(col)
             col[:first] = st[i]
     return Program(points=P, motion=M, line=L, start=st, feed=Fd, source=name, units=units,
-                   path_modes=tuple(path_modes))
+                   path_modes=tuple(path_modes), spindle_off_feeds=off_feeds, spindle_off_line=off_line)

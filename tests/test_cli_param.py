@@ -86,7 +86,7 @@ def test_errors_leave_no_output(mesh_file, tmp_path, capsys):
     assert main(["param", str(path)]) == 2
     # same file twice
     rc = main(["param", str(path), "-o", str(out), "--report", str(out)])
-    assert rc == 2 and "must differ" in capsys.readouterr().err
+    assert rc == 2 and "given for two outputs" in capsys.readouterr().err
     # a missing mesh
     assert main(["param", str(tmp_path / "none.ply"), "-o", str(out)]) == 2
     assert sorted(p.name for p in tmp_path.iterdir()) == ["patch.ply"]

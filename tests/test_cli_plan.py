@@ -188,6 +188,12 @@ def test_plan_programs_run_in_linuxcnc(part, tmp_path, pattern):
     (["--tool-radius", "4", "--scallop", "0.1", "--tool-number", "0"], 3, "tool number"),
     # a millimetre part read as metres: refused at once, not planned until memory runs out
     (["--tool-radius", "4", "--scallop", "0.01", "--scale", "10000"], 3, "--scale"),
+    (["--tool-radius", "4", "--scallop", "0.1", "--feed", "1e-9"], 3, "f0"),  # rs274: "g1 with zero feed rate"
+    (["--tool-radius", "4", "--scallop", "0.1", "--feed", "0.002"], 3, "plunge-feed"),  # feed / 3 rounds to F0
+    (["--tool-radius", "4", "--scallop", "0.1", "--spindle", "0.00001"], 3, "spindle"),  # it was written M3 S0.0
+    (["--tool-radius", "4", "--scallop", "0.1", "--spindle", "nan"], 3, "spindle"),
+    (["--tool-radius", "4", "--scallop", "0.1", "--safe-z", "nan"], 3, "safe-z"),
+    (["--tool-radius", "2", "--scallop", "1e-9"], 3, "scallop"),  # its samples alone would fill the memory
 ])
 def test_bad_values_exit_without_output(part, tmp_path, capsys, args, code, word):
     out = tmp_path / "p.nc"
@@ -201,6 +207,20 @@ def test_bad_values_exit_without_output(part, tmp_path, capsys, args, code, word
 def test_missing_output_folder(part, tmp_path, capsys):
     rc = main(["plan", str(part), "--tool-radius", "4", "--scallop", "0.1", "-o", str(tmp_path / "no" / "p.nc")])
     assert rc == 2 and "does not exist" in capsys.readouterr().err
+
+
+def test_outputs_that_collide_or_are_folders_are_refused_before_any_work(part, tmp_path, capsys):
+    before = part.read_bytes()
+    (tmp_path / "d").mkdir()
+    base = ["plan", str(part), "--tool-radius", "4", "--scallop", "0.3"]
+    for extra, word in ((["-o", str(tmp_path / "d")], "it is a folder"),
+                        (["-o", str(tmp_path / "x"), "--report", str(tmp_path / "x")], "given for two outputs"),
+                        (["-o", str(tmp_path / "y.nc"), "--plot", str(tmp_path / "y.nc")], "given for two outputs"),
+                        (["-o", str(part)], "it is the input")):
+        rc = main(base + extra)
+        err = capsys.readouterr().err
+        assert rc == 2 and word in err and "Traceback" not in err, err
+    assert part.read_bytes() == before and sorted(p.name for p in tmp_path.iterdir()) == ["d"]
 
 
 def test_spacing_option_reaches_the_report(part, tmp_path, capsys):

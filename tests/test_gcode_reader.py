@@ -271,3 +271,9 @@ def test_plain_linear_moves_read_as_the_general_parse_reads_them():
 def test_feed_blocks_with_the_spindle_stopped(text, blocks, first):
     p = read_gcode(text)
     assert (p.spindle_off_feeds, p.spindle_off_line) == (blocks, first)
+
+
+def test_an_exponent_is_not_read_as_a_number():
+    # "X1e400" is X1 and E400 to an RS274 reader; rs274 refuses the E word, and so does this one
+    with pytest.raises(GCodeError, match=r"line 2: word E is not supported"):
+        read_gcode("G21 G90\nG1 X1e400 Y0 Z0 F100\n")

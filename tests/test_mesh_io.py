@@ -313,3 +313,20 @@ def test_shared_meshes_read_as_disks(fname):
     m = read_mesh(SHARED / fname)
     logging.getLogger(__name__).info("%s: %.3f s", fname, time.perf_counter() - t)
     assert m.n_faces > 0 and len(topology.boundary_loops(m.F, m.n_vertices)) == 1
+
+
+@pytest.mark.parametrize("fmt", ["stl", "off"])
+def test_a_text_mesh_in_latin1_is_read(tmp_path, fmt):
+    # trimesh decodes text that is not UTF-8 with charset-normalizer (a dependency for this)
+    import trimesh
+
+    m = synthetic.plane(size=10.0, spacing=2.0)
+    tm = trimesh.Trimesh(m.V, m.F, process=False)
+    text = trimesh.exchange.stl.export_stl_ascii(tm) if fmt == "stl" else tm.export(file_type="off")
+    text = text.replace("solid", "solid pi\xe8ce", 1) if fmt == "stl" else text.replace("OFF", "OFF\n# pi\xe8ce", 1)
+    p = tmp_path / f"latin1.{fmt}"
+    p.write_bytes(text.encode("latin-1"))
+    with pytest.raises(UnicodeDecodeError):
+        p.read_bytes().decode("utf-8")
+    got = read_mesh(p)
+    assert got.n_faces == m.n_faces and np.allclose(np.sort(got.V, axis=0), np.sort(m.V, axis=0))

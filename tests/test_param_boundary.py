@@ -71,6 +71,19 @@ def test_auto_corners_on_square_and_notched_outlines_pick_real_corners():
     assert np.allclose(np.abs(xy), [60.0, 40.0])  # the four outer corners, not the notch
 
 
+@pytest.mark.parametrize("V", [[[0, 0, 0], [10, 0, 0], [10, 10, 0], [0, 10, 0]],  # a square of two triangles
+                               [[0, 0, 0], [10, 0, 0], [10, 10, 1], [0, 10, 0]],  # one corner raised
+                               [[0, 0, 0], [20, 0, 1], [20, 10, 2], [0, 10, 1]]])  # a tilted 2:1 rectangle
+def test_auto_corners_of_a_four_vertex_boundary_are_its_vertices(V):
+    from conformill.types import Mesh
+
+    m = Mesh(V=np.array(V, dtype=float), F=np.array([[0, 1, 2], [0, 2, 3]]))
+    _, c = _auto(m)
+    assert sorted(c) == [0, 1, 2, 3]
+    p = parameterize(m, boundary="rectangle")
+    assert np.all(_signed_areas(p.uv, m.F) > 0)
+
+
 def test_auto_corners_on_rounded_outline_are_spread_out():
     m = syn.sphere_cap(R=60, radius_xy=30, spacing=2.5)
     loop, c = _auto(m)

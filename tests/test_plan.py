@@ -145,6 +145,23 @@ def test_a_plan_too_large_for_memory_is_refused_before_any_work():
         plan(big, Job(tool_radius=R_TOOL, scallop=H))
 
 
+def test_a_tiny_scallop_is_refused_by_its_samples_memory():
+    # the paths are sampled every flat step / 3 (finer than the edges here): 300 bytes a sample
+    from conformill.pipeline import _BYTES_PER_SAMPLE, _check_size
+
+    part = synthetic.plane(size=40.0, spacing=2.0)
+    flat = 3e-4
+    feed_m = 1600.0 / flat / 1000.0
+    need = feed_m * 1000.0 / (flat / 3.0) * _BYTES_PER_SAMPLE  # far above 1 MB per metre
+    _check_size(part, 1600.0, flat, memory=1.01 * need)
+    with pytest.raises(PlanningError, match="needing at least"):
+        _check_size(part, 1600.0, flat, memory=0.99 * need)
+    # a 40 mm dome at h = 1e-9 mm (killed by the OS after 140 s, 24 GB, before this check)
+    dome = synthetic.sphere_cap(R=50, radius_xy=20, spacing=2)
+    with pytest.raises(PlanningError, match="scallop"):
+        plan(dome, Job(tool_radius=2, scallop=1e-9))
+
+
 def test_a_part_smaller_than_the_ball_is_planned_with_a_units_warning(caplog):
     # choi's face is 0.12 m across: read as mm it is a speck under the ball
     from conformill.types import Mesh

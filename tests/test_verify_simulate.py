@@ -257,3 +257,15 @@ def test_first_pairs_keeps_each_pair_once():
     # the first occurrence of each is the one kept
     _, first = np.unique(key, return_index=True)
     assert np.array_equal(np.flatnonzero(keep), np.sort(first))
+
+
+def test_no_interior_sample_is_no_pass(flat):
+    # a ball wider than the part: every sample lies within r of the boundary, so nothing is judged
+    r = 40.0
+    prog = raster_program(np.arange(-24.0, 24.01, 4.0), -25, 25)
+    res = verify(flat, prog, r, n_samples=20_000, scallop=0.1, gouge=0.01)
+    assert res.summary["interior_samples"] == 0
+    assert not res.summary["pass"] and any("nothing judged" in f for f in res.summary["failures"])
+    # the same program judged with a ball that leaves an interior passes
+    ok = verify(flat, prog, 3.0, n_samples=20_000, scallop=3.0, gouge=0.01)
+    assert ok.summary["interior_samples"] > 0 and ok.summary["pass"]

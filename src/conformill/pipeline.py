@@ -225,6 +225,10 @@ class _Timer:
             self.t[name] = self.t.get(name, 0.0) + time.perf_counter() - t0
 
 
+#: The least feed (mm/min) the G-code can carry: F words have 3 decimals.
+_LEAST_FEED = 0.001
+
+
 def check_job(job: Job) -> PathParams:
     """Refuse a job that cannot be met (PlanningError, exit 3); return its checked cutting
     parameters (:func:`conformill.planning.steps.check_params`)."""
@@ -237,6 +241,13 @@ def check_job(job: Job) -> PathParams:
             raise PlanningError(f"{name.replace('_', '-')} must be a positive number, got {v}")
     if job.plunge_feed is not None and (not np.isfinite(job.plunge_feed) or job.plunge_feed <= 0):
         raise PlanningError(f"plunge-feed must be a positive number, got {job.plunge_feed}")
+    for name, v in (("feed", job.feed), ("plunge-feed", job.plunge_rate)):  # F is written with 3 decimals
+        if v < _LEAST_FEED:
+            raise PlanningError(f"{name} {v:g} mm/min would be written F0; it must be at least {_LEAST_FEED:g}")
+    if job.spindle is not None and not (np.isfinite(job.spindle) and job.spindle >= 1.0):
+        raise PlanningError(f"spindle must be a speed of at least 1 rpm, got {job.spindle}")
+    if job.safe_z is not None and not np.isfinite(job.safe_z):
+        raise PlanningError(f"safe-z must be a finite height (mm), got {job.safe_z}")
     if not (np.isfinite(job.settle) and job.settle >= 0):
         raise PlanningError(f"settle must be a non-negative number, got {job.settle}")
     if job.orient not in ("none", "auto"):
@@ -367,6 +378,12 @@ def _stats(x):
 #: (their feed 4.4x and 6.0x the estimate; h = 0.01, r = 4), so a plan refused by
 #: :func:`_check_size` is more than ten times too large to finish.
 _BYTES_PER_FEED_M = 1.0e6
+#: Memory per dense sample of the paths (bytes): at least this. The planner samples the
+#: paths every ``min(median edge, flat side step / 3)``, and the samples are kept until the
+#: program is written, so at a tiny scallop they decide the memory: a 40 mm dome at h = 1e-5
+#: (r = 2, a 4 um sample spacing, 26.6M samples over 112 m of feed) peaked at 10.6 GB, 400
+#: bytes each (session 43; at h = 1e-9 the same dome was killed by the OS with 24 GB).
+_BYTES_PER_SAMPLE = 300.0
 
 
 def _physical_memory() -> float | None:
@@ -386,19 +403,23 @@ def _check_size(mesh: Mesh, area: float, flat_ls: float, memory: float | None = 
     step, so the feed is about ``area / flat_ls`` or more (4.4x that on igea; only where
     the part faces down can the paths lie wider apart). A part in the wrong units (a
     millimetre mesh given ``--scale 1000``) otherwise plans for minutes and ends out of
-    memory, or is killed by the OS without a word.
+    memory, or is killed by the OS without a word. So does a tiny scallop, whose paths are
+    sampled densely (:data:`_BYTES_PER_SAMPLE`): both bounds are lower bounds.
     """
     memory = _physical_memory() if memory is None else memory
     if memory is None:
         return
     feed_m = area / flat_ls / 1000.0
-    if feed_m * _BYTES_PER_FEED_M > memory:
+    # the planner's dense samples (pipeline.plan's seg_len) per metre of that feed
+    edge = float(np.median(np.linalg.norm(mesh.V[mesh.F[:, 1]] - mesh.V[mesh.F[:, 0]], axis=1)))
+    per_m = max(_BYTES_PER_FEED_M, 1000.0 / min(edge, flat_ls / 3.0) * _BYTES_PER_SAMPLE)
+    if feed_m * per_m > memory:
         ext = mesh.V.max(0) - mesh.V.min(0)
         raise PlanningError(
             f"the part is {ext[0]:.4g} x {ext[1]:.4g} x {ext[2]:.4g} mm with {area / 1e6:.4g} m^2 of surface: at a "
             f"flat side step of {flat_ls:.3g} mm its program would be at least {feed_m / 1000:.4g} km of feed, "
-            f"more than the {memory / 2**30:.1f} GB of memory here can plan; check the units (--scale) and the "
-            f"scallop")
+            f"needing at least {feed_m * per_m / 2**30:.3g} GB to plan, more than the {memory / 2**30:.1f} GB of "
+            f"memory here; check the units (--scale) and the scallop")
 
 
 def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:

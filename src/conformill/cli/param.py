@@ -53,11 +53,7 @@ def add_arguments(parser) -> None:
 def run(args) -> int:
     from conformill.output.atomic import check_writable
 
-    outputs = [args.output, args.report, args.plot]
-    check_writable(*outputs)
-    seen = [p for p in outputs if p]
-    if len(set(seen)) != len(seen):
-        raise OutputError(f"output files must differ: {', '.join(seen)}")
+    check_writable(args.output, args.report, args.plot, inputs=(args.mesh,))
     if args.corners is not None and args.boundary != "rectangle":
         raise ParameterizationError("--corners needs --boundary rectangle")
 

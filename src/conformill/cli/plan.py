@@ -172,7 +172,7 @@ def run(args) -> int:
     from conformill.output.atomic import check_writable
     from conformill.pipeline import Job
 
-    check_writable(args.output, args.report, args.plot, args.html)
+    check_writable(args.output, args.report, args.plot, args.html, inputs=(args.mesh,))
     if args.threads is not None:
         if args.threads < 1:
             raise PlanningError(f"--threads must be at least 1, got {args.threads}")

@@ -243,7 +243,7 @@ def run(args) -> int:
     check_steps(args.holder_step, args.holder_radius)
     if args.rest and args.scallop is None:
         raise ConformillError("--rest needs --scallop (the rest is searched where more than H is left)")
-    check_writable(args.report, args.plot)
+    check_writable(args.report, args.plot, inputs=(args.mesh, None if args.program == "-" else args.program))
     if args.program != "-" and (not Path(args.program).exists() or Path(args.program).is_dir()):
         raise ConformillError(f"G-code file {args.program} does not exist (or is a folder)")
     from conformill import warm

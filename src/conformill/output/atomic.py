@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import shutil
 import tempfile
 from pathlib import Path
 
@@ -63,38 +64,114 @@ def write_text(path, text: str) -> None:
             raise OutputError(f"cannot write {path}: {exc.strerror}") from None
 
 
-def check_writable(*paths) -> None:
-    """Fail early, before any work, when an output folder does not exist.
+def check_writable(*paths, inputs=()) -> None:
+    """Fail early, before any work, when an output cannot be written: its folder does not
+    exist, it is a folder, two outputs are the same file, or an output is one of the
+    command's ``inputs`` (which it would overwrite). ``None`` entries are skipped.
 
     Raises
     ------
     OutputError
     """
+    seen = {}
     for p in paths:
         if p is None:
             continue
-        folder = Path(p).parent if str(Path(p).parent) else Path(".")
+        path = Path(p)
+        folder = path.parent if str(path.parent) else Path(".")
         if not folder.is_dir():
             raise OutputError(f"cannot write {p}: folder {folder} does not exist")
+        if path.is_dir():
+            raise OutputError(f"cannot write {p}: it is a folder; give a file name")
+        key = _same_file_key(path)
+        if key in seen:
+            raise OutputError(f"cannot write {p}: it is given for two outputs ({seen[key]} and {p}); give each its "
+                              f"own file")
+        seen[key] = p
+    for q in inputs:
+        if q is None or not Path(q).is_file():
+            continue
+        key = _same_file_key(Path(q))
+        if key in seen:
+            raise OutputError(f"cannot write {seen[key]}: it is the input {q}, which it would overwrite")
+
+
+def _same_file_key(path: Path):
+    """A key equal for two names of the same file: (device, inode) when it exists, else the
+    absolute path with symbolic links resolved."""
+    try:
+        st = os.stat(path)
+        return ("inode", st.st_dev, st.st_ino)
+    except OSError:
+        return ("path", str(path.resolve()))
 
 
 @contextlib.contextmanager
 def all_or_nothing(*paths):
-    """Remove every file in ``paths`` written inside the block if the block fails.
+    """Undo every file in ``paths`` written inside the block if the block fails.
 
     A command that writes several outputs (program, report, plot, viewer) leaves none of
-    them behind when a later one cannot be made. Files that existed before are left alone
-    only if they were not replaced inside the block.
+    them behind when a later one cannot be made: a file that did not exist is removed, and
+    a file that existed before is put back as it was (it is kept under a hidden name beside
+    it, a hard link where the file system allows, a copy otherwise, until the block ends;
+    a hard link keeps the old contents because every writer replaces its file by a rename,
+    :func:`atomic_path`).
     """
-    before = {str(p): _stamp(p) for p in paths if p is not None}
+    before, kept = {}, {}
+    try:
+        for p in paths:
+            if p is None:
+                continue
+            before[str(p)] = _stamp(p)
+            if before[str(p)] is not None:
+                kept[str(p)] = _keep(Path(p))
+    except BaseException:
+        _drop(kept)
+        raise
     try:
         yield
     except BaseException:
         for p, st in before.items():
-            if _stamp(p) != st:
-                with contextlib.suppress(OSError):
+            if _stamp(p) == st:
+                continue
+            old = kept.pop(p, None)
+            with contextlib.suppress(OSError):
+                if old is not None:
+                    os.replace(old, p)
+                else:
                     os.unlink(p)
         raise
+    finally:
+        _drop(kept)
+
+
+def _keep(path: Path) -> str | None:
+    """A hidden second name (or copy) of the existing file ``path`` beside it; ``None``
+    when none can be made (the file is then removed on failure, as a new one is)."""
+    folder = path.parent if str(path.parent) else Path(".")
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".kept", dir=folder)
+        os.close(fd)
+        os.unlink(tmp)
+    except OSError:
+        return None
+    try:
+        os.link(path, tmp)
+    except OSError:
+        try:
+            shutil.copy2(path, tmp)
+        except OSError:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+            return None
+    return tmp
+
+
+def _drop(kept: dict) -> None:
+    for old in kept.values():
+        if old is not None:
+            with contextlib.suppress(OSError):
+                os.unlink(old)
 
 
 def _stamp(p):

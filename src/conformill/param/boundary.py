@@ -202,9 +202,16 @@ def auto_corners(V: np.ndarray, loop: np.ndarray, turning: np.ndarray) -> tuple:
     # keep four distinct positions in loop order, starting from the min-(x, y) corner
     if len(set(pos.tolist())) < 4:
         # degenerate outline (e.g. very few boundary vertices): fall back to equal arc lengths
+        # (the vertex at or before each quarter; if two coincide, the nearest to each quarter;
+        # if two still coincide, every b/4-th vertex)
         start = pos[0]
         tgt = (s[start] + L * np.arange(4) / 4) % L
         pos = np.searchsorted(s[:-1], tgt, side="right") - 1
+        if len(set(pos.tolist())) < 4:
+            gap = np.abs(s[:-1][None, :] - tgt[:, None])
+            pos = np.argmin(np.minimum(gap, L - gap), axis=1)
+        if len(set(pos.tolist())) < 4 and b >= 4:
+            pos = (start + np.round(np.arange(4) * b / 4).astype(np.int64)) % b
         if len(set(pos.tolist())) < 4:
             raise ParameterizationError(
                 f"cannot choose four distinct rectangle corners on a boundary of {b} vertices"

@@ -328,7 +328,10 @@ def read_gcode(source, chord_tol: float = 0.001, start=None, block_delete: bool 
                 continue
             elif letter in "ABCUVW":
                 raise _error(lineno, raw, f"axis {letter} is not supported (3-axis programs only)")
-            elif letter in "XYZIJKRFPLQE":
+            elif letter == "E":  # (no 3-axis use; "X1e3" is not a number in G-code but X1 and E3)
+                raise _error(lineno, raw, "word E is not supported (numbers with an exponent, like 1e3, are not "
+                                          "G-code either)")
+            elif letter in "XYZIJKRFPLQ":
                 if letter in vals:
                     raise _error(lineno, raw, f"word {letter} appears twice")
                 vals[letter] = float(num)

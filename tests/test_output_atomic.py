@@ -1,0 +1,70 @@
+"""Atomic outputs: a failed command leaves the files as they were, and bad output names are refused first."""
+
+import os
+
+import pytest
+
+from conformill.errors import OutputError
+from conformill.output.atomic import all_or_nothing, check_writable, write_text
+
+
+def _hidden(folder):
+    return sorted(p.name for p in folder.iterdir() if p.name.startswith("."))
+
+
+def test_a_failure_puts_back_the_old_files_and_removes_the_new(tmp_path):
+    old, new, same = tmp_path / "old.nc", tmp_path / "new.json", tmp_path / "same.png"
+    old.write_text("the old program\n")
+    same.write_text("untouched\n")
+    with pytest.raises(RuntimeError), all_or_nothing(old, new, same, None):
+        write_text(old, "half of a new program\n")
+        write_text(new, "{}\n")
+        raise RuntimeError("a later output failed")
+    assert old.read_text() == "the old program\n" and not new.exists() and same.read_text() == "untouched\n"
+    assert _hidden(tmp_path) == []  # no kept copy or temporary file left
+
+
+def test_success_keeps_the_new_files_and_no_copy(tmp_path):
+    old = tmp_path / "old.nc"
+    old.write_text("the old program\n")
+    with all_or_nothing(old, tmp_path / "new.json"):
+        write_text(old, "the new program\n")
+        write_text(tmp_path / "new.json", "{}\n")
+    assert old.read_text() == "the new program\n" and (tmp_path / "new.json").exists()
+    assert _hidden(tmp_path) == []
+
+
+def test_a_file_written_in_place_is_put_back_from_a_copy_where_links_fail(tmp_path, monkeypatch):
+    old = tmp_path / "old.nc"
+    old.write_text("the old program\n")
+
+    def no_link(*a, **k):
+        raise OSError("no hard links here")
+
+    monkeypatch.setattr(os, "link", no_link)
+    with pytest.raises(RuntimeError), all_or_nothing(old):
+        with open(old, "w") as fh:  # not by a rename: only a copy keeps the old contents
+            fh.write("overwritten\n")
+        raise RuntimeError("failed")
+    assert old.read_text() == "the old program\n" and _hidden(tmp_path) == []
+
+
+def test_check_writable_refuses_folders_twins_and_inputs(tmp_path):
+    mesh = tmp_path / "part.ply"
+    mesh.write_text("ply\n")
+    (tmp_path / "d").mkdir()
+    (tmp_path / "sub").mkdir()
+    check_writable(tmp_path / "a.nc", None, tmp_path / "r.json", inputs=(mesh, "sample:face", None))
+    with pytest.raises(OutputError, match="it is a folder"):
+        check_writable(tmp_path / "d")
+    with pytest.raises(OutputError, match="missing does not exist"):
+        check_writable(tmp_path / "missing" / "a.nc")
+    with pytest.raises(OutputError, match="given for two outputs"):
+        check_writable(tmp_path / "a.nc", tmp_path / "r.json", tmp_path / "sub" / ".." / "a.nc")
+    with pytest.raises(OutputError, match="it is the input"):
+        check_writable(tmp_path / "a.nc", mesh, inputs=(mesh,))
+    link = tmp_path / "alias.ply"
+    os.symlink(mesh, link)
+    with pytest.raises(OutputError, match="it is the input"):  # another name of the same file
+        check_writable(link, inputs=(mesh,))
+    assert mesh.read_text() == "ply\n"

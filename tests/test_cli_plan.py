@@ -189,11 +189,10 @@ def test_plan_programs_run_in_linuxcnc(part, tmp_path, pattern):
     # a millimetre part read as metres: refused at once, not planned until memory runs out
     (["--tool-radius", "4", "--scallop", "0.01", "--scale", "10000"], 3, "--scale"),
     (["--tool-radius", "4", "--scallop", "0.1", "--feed", "1e-9"], 3, "f0"),  # rs274: "g1 with zero feed rate"
-    (["--tool-radius", "4", "--scallop", "0.1", "--feed", "0.002"], 3, "plunge-feed"),  # feed / 3 rounds to F0
+    (["--tool-radius", "4", "--scallop", "0.1", "--feed", "0.001"], 3, "plunge-feed"),  # feed / 3 is written F0
     (["--tool-radius", "4", "--scallop", "0.1", "--spindle", "0.00001"], 3, "spindle"),  # it was written M3 S0.0
     (["--tool-radius", "4", "--scallop", "0.1", "--spindle", "nan"], 3, "spindle"),
     (["--tool-radius", "4", "--scallop", "0.1", "--safe-z", "nan"], 3, "safe-z"),
-    (["--tool-radius", "2", "--scallop", "1e-9"], 3, "scallop"),  # its samples alone would fill the memory
 ])
 def test_bad_values_exit_without_output(part, tmp_path, capsys, args, code, word):
     out = tmp_path / "p.nc"
@@ -207,6 +206,17 @@ def test_bad_values_exit_without_output(part, tmp_path, capsys, args, code, word
 def test_missing_output_folder(part, tmp_path, capsys):
     rc = main(["plan", str(part), "--tool-radius", "4", "--scallop", "0.1", "-o", str(tmp_path / "no" / "p.nc")])
     assert rc == 2 and "does not exist" in capsys.readouterr().err
+
+
+def test_a_tiny_scallop_is_refused_by_its_memory(part, tmp_path, capsys, monkeypatch):
+    # the samples of a 0.0004 mm scallop would not fit in a machine of 50 MB (pipeline._check_size)
+    from conformill import pipeline
+
+    monkeypatch.setattr(pipeline, "_physical_memory", lambda: 50e6)
+    out = tmp_path / "t.nc"
+    rc = main(["plan", str(part), "--tool-radius", "2", "--scallop", "0.0004", "-o", str(out)])
+    err = capsys.readouterr().err
+    assert rc == 3 and "GB to plan" in err and "scallop" in err and "Traceback" not in err and not out.exists()
 
 
 def test_outputs_that_collide_or_are_folders_are_refused_before_any_work(part, tmp_path, capsys):

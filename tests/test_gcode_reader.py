@@ -265,8 +265,8 @@ def test_plain_linear_moves_read_as_the_general_parse_reads_them():
     ("G21 G90\nG0 X0 Y0 Z5\nG1 Z0 F100 M3 S900\nG1 X1 M5\nG1 X2\nM30\n", 2, 4),
     # M5 stops it, M3 starts it again; the fast path (G1 X Y Z lines) counts too
     ("G21 G90\nM3 S1\nG0 X0 Y0 Z5\nG1 Z0 F100\nM5\nG1 X1.0000 Y0.0000 Z0.0000\nM3\nG1 X2.0000 Y0.0000 Z0.0000\n", 1, 6),
-    # the program's end stops it after the block's motion; a rapid never counts
-    ("G21 G90\nM3 S1\nG0 X0 Y0 Z5\nG1 Z0 F100 M30\nG1 X1\nG0 Z9\n", 1, 5),
+    # a tool change stops it (before an M3 in the same block); a rapid never counts
+    ("G21 G90\nM3 S1\nG0 X0 Y0 Z5\nT1 M6\nG1 Z0 F100\nT2 M6 M3 S2\nG1 X1\nG0 Z9\n", 1, 5),
 ])
 def test_feed_blocks_with_the_spindle_stopped(text, blocks, first):
     p = read_gcode(text)
@@ -274,6 +274,18 @@ def test_feed_blocks_with_the_spindle_stopped(text, blocks, first):
 
 
 def test_an_exponent_is_not_read_as_a_number():
-    # "X1e400" is X1 and E400 to an RS274 reader; rs274 refuses the E word, and so does this one
-    with pytest.raises(GCodeError, match=r"line 2: word E is not supported"):
+    # "X1e400" is X1 and E400 to an RS274 reader; rs274 refuses the E word there, and so does this one
+    with pytest.raises(GCodeError, match=r"line 2: word E is only read with M66/M67/M68"):
         read_gcode("G21 G90\nG1 X1e400 Y0 Z0 F100\n")
+    # LinuxCNC's inputs and outputs take it (rs274 accepts these)
+    p = read_gcode("G21 G90\nM66 E0 L0\nM67 E0 Q2.5\nM68 E1 Q0\nG0 X0 Y0 Z5\nG1 Z0 F100\n")
+    assert np.allclose(p.points, [[0, 0, 5], [0, 0, 0]])
+
+
+def test_the_program_ends_at_m2_or_m30():
+    # the block's own motion runs, nothing after it (the machine stops there)
+    for end in ("M2", "M30"):
+        p = read_gcode(f"G21 G90\nM3 S1\nG0 X0 Y0 Z5\nG1 Z0 F100 {end}\nG1 X1\nG0 Z9\n")
+        assert np.allclose(p.points, [[0, 0, 5], [0, 0, 0]]) and p.spindle_off_feeds == 0
+        p = read_gcode(f"G21 G90\nG0 X0 Y0 Z5\n{end}\nG1 X7 Z0 F100\n")
+        assert np.allclose(p.points, [[0, 0, 5]]) and p.spindle_off_feeds == 0

@@ -68,3 +68,61 @@ def test_check_writable_refuses_folders_twins_and_inputs(tmp_path):
     with pytest.raises(OutputError, match="it is the input"):  # another name of the same file
         check_writable(link, inputs=(mesh,))
     assert mesh.read_text() == "ply\n"
+
+
+def test_an_old_file_that_cannot_be_kept_is_not_deleted(tmp_path, monkeypatch):
+    # no second name and no copy: on failure the new file stays (deleting it would lose both)
+    import shutil
+
+    old = tmp_path / "old.nc"
+    old.write_text("the old program\n")
+
+    def refuse(*a, **k):
+        raise OSError("no")
+
+    monkeypatch.setattr(os, "link", refuse)
+    monkeypatch.setattr(shutil, "copyfile", refuse)
+    with pytest.raises(RuntimeError), all_or_nothing(old):
+        write_text(old, "the new program\n")
+        raise RuntimeError("failed")
+    assert old.read_text() == "the new program\n" and _hidden(tmp_path) == []
+
+
+def test_a_long_name_is_kept_and_put_back(tmp_path):
+    # the hidden name takes only the start of the file's: it fits wherever the file's own does
+    old = tmp_path / ("a" * 238 + ".nc")
+    old.write_text("the old program\n")
+    with pytest.raises(RuntimeError), all_or_nothing(old):
+        write_text(old, "the new program\n")
+        raise RuntimeError("failed")
+    assert old.read_text() == "the old program\n" and _hidden(tmp_path) == []
+
+
+def test_sigterm_during_a_command_puts_back_the_old_file(tmp_path):
+    # the command line's handler undoes the outputs at once and ends the process (nothing is
+    # unwound: worker threads may still read the arrays); run in a process of its own
+    import subprocess
+    import sys
+
+    old = tmp_path / "old.nc"
+    old.write_text("the old program\n")
+    code = f"""
+import os, signal, types
+from conformill.cli.main import _run
+from conformill.output.atomic import all_or_nothing, atomic_path, write_text
+
+def run(args):
+    with all_or_nothing({str(old)!r}, {str(tmp_path / "new.json")!r}):
+        write_text({str(old)!r}, "half of a new program\\n")
+        write_text({str(tmp_path / "new.json")!r}, "{{}}\\n")
+        with atomic_path({str(tmp_path / "plot.png")!r}) as tmp:
+            open(tmp, "w").write("a temporary file")
+            os.kill(os.getpid(), signal.SIGTERM)
+            raise AssertionError("not reached")
+
+_run(types.SimpleNamespace(command="plan", _module=types.SimpleNamespace(run=run)))
+"""
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 128 + 15 and "conformill: terminated" in r.stderr, r.stderr
+    assert old.read_text() == "the old program\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["old.nc"]  # no new, temporary or kept file

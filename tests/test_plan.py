@@ -145,7 +145,7 @@ def test_a_plan_too_large_for_memory_is_refused_before_any_work():
         plan(big, Job(tool_radius=R_TOOL, scallop=H))
 
 
-def test_a_tiny_scallop_is_refused_by_its_samples_memory():
+def test_a_tiny_scallop_is_refused_by_its_samples_memory(monkeypatch):
     # the paths are sampled every flat step / 3 (finer than the edges here): 300 bytes a sample
     from conformill.pipeline import _BYTES_PER_SAMPLE, _check_size
 
@@ -156,10 +156,17 @@ def test_a_tiny_scallop_is_refused_by_its_samples_memory():
     _check_size(part, 1600.0, flat, memory=1.01 * need)
     with pytest.raises(PlanningError, match="needing at least"):
         _check_size(part, 1600.0, flat, memory=0.99 * need)
-    # a 40 mm dome at h = 1e-9 mm (killed by the OS after 140 s, 24 GB, before this check)
+    # plan() asks before any work. A 40 mm dome at h = 4e-4 (r = 2: 16 m of feed by the
+    # estimate, 16 MB at 1 MB per metre, about 180 MB by its samples; it plans in about 300 MB)
+    # on a machine of 50 MB: refused by the samples' bound alone. (So small a machine keeps
+    # this test from filling the real one if the check breaks: at h = 1e-9 the dome was
+    # killed by the OS after 140 s with 24 GB.)
+    from conformill import pipeline
+
+    monkeypatch.setattr(pipeline, "_physical_memory", lambda: 50e6)
     dome = synthetic.sphere_cap(R=50, radius_xy=20, spacing=2)
-    with pytest.raises(PlanningError, match="scallop"):
-        plan(dome, Job(tool_radius=2, scallop=1e-9))
+    with pytest.raises(PlanningError, match="needing at least .* GB to plan"):
+        plan(dome, Job(tool_radius=2, scallop=4e-4))
 
 
 def test_a_part_smaller_than_the_ball_is_planned_with_a_units_warning(caplog):

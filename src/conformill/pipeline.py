@@ -225,7 +225,7 @@ class _Timer:
             self.t[name] = self.t.get(name, 0.0) + time.perf_counter() - t0
 
 
-#: The least feed (mm/min) the G-code can carry: F words have 3 decimals.
+#: The least feed (mm/min) the G-code carries: F words have 3 decimals (below 0.0005: F0).
 _LEAST_FEED = 0.001
 
 
@@ -241,8 +241,8 @@ def check_job(job: Job) -> PathParams:
             raise PlanningError(f"{name.replace('_', '-')} must be a positive number, got {v}")
     if job.plunge_feed is not None and (not np.isfinite(job.plunge_feed) or job.plunge_feed <= 0):
         raise PlanningError(f"plunge-feed must be a positive number, got {job.plunge_feed}")
-    for name, v in (("feed", job.feed), ("plunge-feed", job.plunge_rate)):  # F is written with 3 decimals
-        if v < _LEAST_FEED:
+    for name, v in (("feed", job.feed), ("plunge-feed", job.plunge_rate)):
+        if float(f"{v:.3f}") == 0.0:  # F is written with 3 decimals (output.gcode)
             raise PlanningError(f"{name} {v:g} mm/min would be written F0; it must be at least {_LEAST_FEED:g}")
     if job.spindle is not None and not (np.isfinite(job.spindle) and job.spindle >= 1.0):
         raise PlanningError(f"spindle must be a speed of at least 1 rpm, got {job.spindle}")

@@ -8,6 +8,7 @@ their exit code (2 bad input, 3 plan that cannot be met); no traceback.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import logging
 import sys
@@ -68,6 +69,51 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):
 
 
 def _run(args) -> int:
+    with _undo_on_termination():
+        return _run_command(args)
+
+
+@contextlib.contextmanager
+def _undo_on_termination():
+    """While the command runs, SIGTERM and SIGHUP first undo its outputs as a failure would
+    (:func:`conformill.output.atomic.undo_now`: the files it replaced are put back, its new
+    and temporary files removed) and stop the warm-up helper, then end the process with
+    128 + the signal. Nothing is unwound: an exception raised in the main thread while a
+    library's worker threads still read its arrays (scipy's k-d tree queries) crashed the
+    process. The handlers are put back afterwards."""
+    import signal
+
+    old = {}
+    try:
+        for name in ("SIGTERM", "SIGHUP"):
+            sig = getattr(signal, name, None)
+            if sig is not None:
+                old[sig] = signal.signal(sig, _terminate)
+    except ValueError:  # not the main thread: signals cannot be handled here
+        pass
+    try:
+        yield
+    finally:
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
+
+
+def _terminate(signum, frame):
+    import os
+
+    from conformill import warm
+    from conformill.output.atomic import undo_now
+
+    undo_now()
+    warm.stop()
+    with contextlib.suppress(Exception):
+        print("conformill: terminated", file=sys.stderr)
+        sys.stderr.flush()
+        sys.stdout.flush()
+    os._exit(128 + signum)
+
+
+def _run_command(args) -> int:
     try:
         return int(args._module.run(args))
     except ConformillError as exc:

@@ -76,7 +76,10 @@ def run(args) -> int:
     header = (f"conformill param {mesh.name}: {args.boundary} boundary, {args.weights} weights\n"
               f"v = mesh vertices (mm, input order), vt = parameter coordinates")
     data = format_obj(mesh.V, mesh.F, param.uv, header=header)
-    with contextlib.ExitStack() as stack:  # rename every output only when all are complete
+    from conformill.output.atomic import all_or_nothing
+
+    # rename every output only when all are complete (and undo the renames if one fails)
+    with all_or_nothing(args.output, args.report, args.plot), contextlib.ExitStack() as stack:
         tmp = stack.enter_context(atomic_path(args.output))
         _write_bytes(tmp, data, args.output)
         del data

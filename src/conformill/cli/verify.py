@@ -284,14 +284,17 @@ def _check(args) -> int:
     seconds = time.perf_counter() - t0
     summary.update(mesh=mesh.name, program=program.source, faces=mesh.n_faces, scale=args.scale, seconds=seconds,
                    path_control=list(program.path_modes), spindle=spindle_summary(program))
-    if args.report:
-        from conformill.output.report import write_json
+    from conformill.output.atomic import all_or_nothing
 
-        write_json(args.report, summary)
-    if args.plot:
-        from conformill.output.plot_verify import plot_verify
+    with all_or_nothing(args.report, args.plot):  # both or neither
+        if args.report:
+            from conformill.output.report import write_json
 
-        plot_verify(args.plot, res, title=f"{mesh.name} / {program.source}")
+            write_json(args.report, summary)
+        if args.plot:
+            from conformill.output.plot_verify import plot_verify
+
+            plot_verify(args.plot, res, title=f"{mesh.name} / {program.source}")
     if not quiet:
         print(table(summary))
         print(f"({seconds:.1f} s)")

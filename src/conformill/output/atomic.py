@@ -1,6 +1,9 @@
 """Atomic file output: write to a temporary file beside the target, then rename.
 
-A failed run therefore never leaves a partial output file.
+A failed run therefore never leaves a partial output file. A run ended by a signal unwinds
+no Python frames (worker threads may still be using their arrays), so what the active
+blocks would undo on failure is also registered here, for :func:`undo_now` to do at once
+(the command line's SIGTERM and SIGHUP handlers, ``conformill.cli.main``).
 """
 
 from __future__ import annotations
@@ -12,6 +15,28 @@ import tempfile
 from pathlib import Path
 
 from conformill.errors import OutputError
+
+#: What the active blocks would undo on failure, innermost last (:func:`undo_now`).
+_UNDO: list = []
+
+
+def undo_now() -> None:
+    """Undo at once what every active :func:`atomic_path` and :func:`all_or_nothing` would
+    undo on failure (their temporary files, the files they replaced); for a process about
+    to end without unwinding."""
+    while _UNDO:
+        with contextlib.suppress(Exception):
+            _UNDO.pop()()
+
+
+@contextlib.contextmanager
+def _undo_on_signal(undo):
+    _UNDO.append(undo)
+    try:
+        yield
+    finally:
+        with contextlib.suppress(ValueError):
+            _UNDO.remove(undo)
 
 
 @contextlib.contextmanager
@@ -40,8 +65,14 @@ def atomic_path(path, suffix: str | None = None):
     except OSError as exc:
         raise OutputError(f"cannot write {path}: {exc.strerror}") from None
     os.close(fd)
+
+    def drop_tmp():
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+
     try:
-        yield Path(tmp)
+        with _undo_on_signal(drop_tmp):
+            yield Path(tmp)
         # mkstemp makes the file 0600; give it the permissions an ordinary open() would.
         umask = os.umask(0)
         os.umask(umask)
@@ -49,8 +80,7 @@ def atomic_path(path, suffix: str | None = None):
             os.chmod(tmp, 0o666 & ~umask)
         os.replace(tmp, path)
     except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
+        drop_tmp()
         raise
 
 
@@ -112,12 +142,27 @@ def all_or_nothing(*paths):
 
     A command that writes several outputs (program, report, plot, viewer) leaves none of
     them behind when a later one cannot be made: a file that did not exist is removed, and
-    a file that existed before is put back as it was (it is kept under a hidden name beside
+    a file that existed before is put back as it was (one that could not be kept stays as
+    the block left it) (it is kept under a hidden name beside
     it, a hard link where the file system allows, a copy otherwise, until the block ends;
     a hard link keeps the old contents because every writer replaces its file by a rename,
     :func:`atomic_path`).
     """
     before, kept = {}, {}
+
+    def undo():
+        for p, st in before.items():
+            if _stamp(p) == st:
+                continue
+            old = kept.pop(p, None)
+            with contextlib.suppress(OSError):
+                if old is not None:
+                    os.replace(old, p)
+                elif st is None:  # new: removed
+                    os.unlink(p)
+                # (an old file that could not be kept stays replaced: removing it would lose both)
+        _drop(kept)
+
     try:
         for p in paths:
             if p is None:
@@ -129,17 +174,10 @@ def all_or_nothing(*paths):
         _drop(kept)
         raise
     try:
-        yield
+        with _undo_on_signal(undo):
+            yield
     except BaseException:
-        for p, st in before.items():
-            if _stamp(p) == st:
-                continue
-            old = kept.pop(p, None)
-            with contextlib.suppress(OSError):
-                if old is not None:
-                    os.replace(old, p)
-                else:
-                    os.unlink(p)
+        undo()
         raise
     finally:
         _drop(kept)
@@ -147,10 +185,10 @@ def all_or_nothing(*paths):
 
 def _keep(path: Path) -> str | None:
     """A hidden second name (or copy) of the existing file ``path`` beside it; ``None``
-    when none can be made (the file is then removed on failure, as a new one is)."""
+    when none can be made (the new file then stays on failure)."""
     folder = path.parent if str(path.parent) else Path(".")
-    try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".kept", dir=folder)
+    try:  # (the name's start only: the hidden name must fit where the file's own did)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name[:64]}.", suffix=".kept", dir=folder)
         os.close(fd)
         os.unlink(tmp)
     except OSError:
@@ -159,7 +197,7 @@ def _keep(path: Path) -> str | None:
         os.link(path, tmp)
     except OSError:
         try:
-            shutil.copy2(path, tmp)
+            shutil.copyfile(path, tmp)  # (the contents: a copy of the permissions may fail)
         except OSError:
             with contextlib.suppress(OSError):
                 os.unlink(tmp)
@@ -168,7 +206,8 @@ def _keep(path: Path) -> str | None:
 
 
 def _drop(kept: dict) -> None:
-    for old in kept.values():
+    while kept:
+        old = kept.popitem()[1]
         if old is not None:
             with contextlib.suppress(OSError):
                 os.unlink(old)

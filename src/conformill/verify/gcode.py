@@ -13,10 +13,15 @@ What is read
 - Modal motion: a block with coordinates and no motion word continues the current motion mode.
 - Units ``G20`` (inch) / ``G21`` (mm): everything is converted to mm. Distance modes ``G90`` /
   ``G91``. ``F`` (feed, converted to mm/min).
-- The spindle: ``M3``/``M4`` start it, ``M5``, ``M2`` and ``M30`` stop it (it is stopped when
-  the program starts); feed moves made while it is stopped are counted
-  (:attr:`Program.spindle_off_feeds`), not refused. In a block, the spindle words act
-  before its motion, ``M2``/``M30`` after it (RS274NGC's order of execution).
+- The program ends at the block with ``M2`` or ``M30`` (after its motion): what follows is
+  not read, as the machine does not run it.
+- The spindle: ``M3``/``M4`` start it, ``M5`` and a tool change ``M6`` stop it (it is stopped
+  when the program starts); feed moves made while it is stopped are counted
+  (:attr:`Program.spindle_off_feeds`), not refused. In a block, ``M6`` acts before
+  ``M3``/``M4``/``M5``, and they act before its motion (RS274NGC's order of execution).
+- ``E`` is read only in a block with ``M66``/``M67``/``M68`` (LinuxCNC's inputs and outputs);
+  elsewhere it is refused, so that ``X1e3`` (an exponent, which G-code has not) is an error,
+  not ``X1`` and ``E3``.
 - Ignored: comments ``( ... )`` and after ``;``, line numbers ``N``, ``%`` lines, the other
   ``M`` words and ``S T H D`` words, ``O`` program names in comments, and the modal G-codes
   that do not move the tool tip in program coordinates: ``G4 G17 G40 G43 G49 G54-G59.3 G61
@@ -120,7 +125,7 @@ class Program:
         programmed.
     spindle_off_feeds : int
         Feed moves (G1/G2/G3 blocks) made while the spindle is stopped: before the first
-        ``M3``/``M4``, or after an ``M5``.
+        ``M3``/``M4``, or after an ``M5`` or a tool change (``M6``) until the next.
     spindle_off_line : int
         1-based line of the first of them (0: none).
     """
@@ -317,6 +322,7 @@ def read_gcode(source, chord_tol: float = 0.001, start=None, block_delete: bool 
         gs = []
         vals = {}
         ms = []
+        e_word = False
         for letter, num in words:
             if letter == "G":
                 gs.append(round(float(num), 1))
@@ -328,9 +334,8 @@ def read_gcode(source, chord_tol: float = 0.001, start=None, block_delete: bool 
                 continue
             elif letter in "ABCUVW":
                 raise _error(lineno, raw, f"axis {letter} is not supported (3-axis programs only)")
-            elif letter == "E":  # (no 3-axis use; "X1e3" is not a number in G-code but X1 and E3)
-                raise _error(lineno, raw, "word E is not supported (numbers with an exponent, like 1e3, are not "
-                                          "G-code either)")
+            elif letter == "E":  # checked below: only LinuxCNC's M66-M68 take it
+                e_word = True
             elif letter in "XYZIJKRFPLQ":
                 if letter in vals:
                     raise _error(lineno, raw, f"word {letter} appears twice")
@@ -373,6 +378,12 @@ def read_gcode(source, chord_tol: float = 0.001, start=None, block_delete: bool 
             path_mode = "G61.1" if 61.1 in gs else "G61"
         elif 64.0 in gs:
             path_mode = "G64" + "".join(f" {k}{vals[k] * scale:g}" for k in "PQ" if k in vals)
+        if e_word and not any(m in ms for m in (66.0, 67.0, 68.0)):
+            # ("X1e3" is X1 and E3 to an RS274 reader, not a number with an exponent)
+            raise _error(lineno, raw, "word E is only read with M66/M67/M68 (numbers with an exponent, like 1e3, "
+                                      "are not G-code)")
+        if 6.0 in ms:  # a tool change stops the spindle (before M3/M4/M5 in the same block)
+            spindle = False
         if 3.0 in ms or 4.0 in ms:  # the spindle words act before the block's motion
             spindle = True
         if 5.0 in ms:
@@ -389,8 +400,8 @@ def read_gcode(source, chord_tol: float = 0.001, start=None, block_delete: bool 
                 raise _error(lineno, raw, "arc without an end point")
             if any(k in vals for k in "IJKR"):
                 raise _error(lineno, raw, "arc words without a motion")
-            if 2.0 in ms or 30.0 in ms:  # program end
-                spindle = False
+            if 2.0 in ms or 30.0 in ms:  # the program ends: the machine reads no further
+                break
             continue
         if mode is None:
             raise _error(lineno, raw, "coordinates without a motion mode (G0/G1/G2/G3)")
@@ -457,9 +468,9 @@ def read_gcode(source, chord_tol: float = 0.001, start=None, block_delete: bool 
             if not spindle:
                 off_feeds += 1
                 off_line = off_line or lineno
-        if 2.0 in ms or 30.0 in ms:  # program end, after the block's motion
-            spindle = False
         pos = target
+        if 2.0 in ms or 30.0 in ms:  # the program ends after the block's motion: nothing further runs
+            break
 
     if pts:
         P = np.array(pts, dtype=np.float64).reshape(-1, 3)

@@ -1129,8 +1129,8 @@ def verify(mesh, program: Program, tool_radius: float, n_samples: int = 200_000,
         fails.append(f"gouge {s_int['gouge_max']:.4g} mm > {gouge:g} mm")
     if scallop is not None or gouge is not None:  # no verdict on no sample
         if not s_int["samples"]:
-            fails.append(f"nothing judged: no interior sample (the interior lies farther than the tool radius "
-                         f"{r0:g} mm from the part's boundary)")
+            fails.append(f"nothing judged: the part has no interior sample (one farther than the tool radius, "
+                         f"{r0:g} mm, from its boundary)")
         elif scallop is not None and not sj["samples"]:
             fails.append("nothing judged: no reachable interior sample")
     summary["failures"] = fails

@@ -101,6 +101,7 @@ def test_a_long_name_is_kept_and_put_back(tmp_path):
 def test_sigterm_during_a_command_puts_back_the_old_file(tmp_path):
     # the command line's handler undoes the outputs at once and ends the process (nothing is
     # unwound: worker threads may still read the arrays); run in a process of its own
+    import signal
     import subprocess
     import sys
 
@@ -122,7 +123,25 @@ def run(args):
 
 _run(types.SimpleNamespace(command="plan", _module=types.SimpleNamespace(run=run)))
 """
-    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
-    assert r.returncode == 128 + 15 and "conformill: terminated" in r.stderr, r.stderr
-    assert old.read_text() == "the old program\n"
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["old.nc"]  # no new, temporary or kept file
+    for sig, word in (("SIGTERM", "terminated"), ("SIGINT", "interrupted")):
+        r = subprocess.run([sys.executable, "-c", code.replace("signal.SIGTERM", f"signal.{sig}")],
+                           capture_output=True, text=True, timeout=120)
+        assert r.returncode == 128 + getattr(signal, sig) and f"conformill: {word}" in r.stderr, r.stderr
+        assert old.read_text() == "the old program\n"
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["old.nc"]  # no new, temporary or kept file
+
+
+def test_a_signal_told_to_be_ignored_stays_ignored():
+    # nohup ignores SIGHUP: the command must not end on a hangup then
+    import signal
+
+    from conformill.cli.main import _undo_on_termination
+
+    before = signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    try:
+        with _undo_on_termination():
+            assert signal.getsignal(signal.SIGHUP) is signal.SIG_IGN
+            assert signal.getsignal(signal.SIGTERM) is not signal.SIG_IGN
+        assert signal.getsignal(signal.SIGHUP) is signal.SIG_IGN
+    finally:
+        signal.signal(signal.SIGHUP, before)

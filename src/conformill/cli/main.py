@@ -75,19 +75,20 @@ def _run(args) -> int:
 
 @contextlib.contextmanager
 def _undo_on_termination():
-    """While the command runs, SIGTERM and SIGHUP first undo its outputs as a failure would
-    (:func:`conformill.output.atomic.undo_now`: the files it replaced are put back, its new
-    and temporary files removed) and stop the warm-up helper, then end the process with
-    128 + the signal. Nothing is unwound: an exception raised in the main thread while a
-    library's worker threads still read its arrays (scipy's k-d tree queries) crashed the
-    process. The handlers are put back afterwards."""
+    """While the command runs, SIGTERM, SIGHUP and SIGINT (Ctrl-C) first undo its outputs as a
+    failure would (:func:`conformill.output.atomic.undo_now`: the files it replaced are put
+    back, its new and temporary files removed) and stop the warm-up helper, then end the
+    process with 128 + the signal. Nothing is unwound: an exception raised in the main thread
+    while a library's worker threads still read its arrays (scipy's k-d tree queries) crashed
+    the process. A signal the process was told to ignore (``nohup``, a background job) stays
+    ignored. The handlers are put back afterwards."""
     import signal
 
     old = {}
     try:
-        for name in ("SIGTERM", "SIGHUP"):
+        for name in ("SIGTERM", "SIGHUP", "SIGINT"):
             sig = getattr(signal, name, None)
-            if sig is not None:
+            if sig is not None and signal.getsignal(sig) is not signal.SIG_IGN:
                 old[sig] = signal.signal(sig, _terminate)
     except ValueError:  # not the main thread: signals cannot be handled here
         pass
@@ -107,7 +108,7 @@ def _terminate(signum, frame):
     undo_now()
     warm.stop()
     with contextlib.suppress(Exception):
-        print("conformill: terminated", file=sys.stderr)
+        print("conformill: interrupted" if signum == 2 else "conformill: terminated", file=sys.stderr)
         sys.stderr.flush()
         sys.stdout.flush()
     os._exit(128 + signum)

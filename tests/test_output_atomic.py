@@ -34,19 +34,27 @@ def test_success_keeps_the_new_files_and_no_copy(tmp_path):
     assert _hidden(tmp_path) == []
 
 
-def test_a_file_written_in_place_is_put_back_from_a_copy_where_links_fail(tmp_path, monkeypatch):
+@pytest.mark.parametrize("copy_fails", [False, True])
+def test_where_links_fail_a_copy_keeps_the_old_file_and_without_one_nothing_is_deleted(tmp_path, monkeypatch,
+                                                                                      copy_fails):
+    import shutil
+
     old = tmp_path / "old.nc"
     old.write_text("the old program\n")
 
-    def no_link(*a, **k):
-        raise OSError("no hard links here")
+    def refuse(*a, **k):
+        raise OSError("no")
 
-    monkeypatch.setattr(os, "link", no_link)
+    monkeypatch.setattr(os, "link", refuse)
+    if copy_fails:
+        monkeypatch.setattr(shutil, "copyfile", refuse)
     with pytest.raises(RuntimeError), all_or_nothing(old):
-        with open(old, "w") as fh:  # not by a rename: only a copy keeps the old contents
-            fh.write("overwritten\n")
+        with open(old, "w") as fh:  # in place, not by a rename: only a copy keeps the old contents
+            fh.write("the new program\n")
         raise RuntimeError("failed")
-    assert old.read_text() == "the old program\n" and _hidden(tmp_path) == []
+    # with a copy the old file is put back; without one the new stays (deleting it would lose both)
+    assert old.read_text() == ("the new program\n" if copy_fails else "the old program\n")
+    assert _hidden(tmp_path) == []
 
 
 def test_check_writable_refuses_folders_twins_and_inputs(tmp_path):
@@ -68,24 +76,6 @@ def test_check_writable_refuses_folders_twins_and_inputs(tmp_path):
     with pytest.raises(OutputError, match="it is the input"):  # another name of the same file
         check_writable(link, inputs=(mesh,))
     assert mesh.read_text() == "ply\n"
-
-
-def test_an_old_file_that_cannot_be_kept_is_not_deleted(tmp_path, monkeypatch):
-    # no second name and no copy: on failure the new file stays (deleting it would lose both)
-    import shutil
-
-    old = tmp_path / "old.nc"
-    old.write_text("the old program\n")
-
-    def refuse(*a, **k):
-        raise OSError("no")
-
-    monkeypatch.setattr(os, "link", refuse)
-    monkeypatch.setattr(shutil, "copyfile", refuse)
-    with pytest.raises(RuntimeError), all_or_nothing(old):
-        write_text(old, "the new program\n")
-        raise RuntimeError("failed")
-    assert old.read_text() == "the new program\n" and _hidden(tmp_path) == []
 
 
 def test_a_long_name_is_kept_and_put_back(tmp_path):

@@ -111,6 +111,9 @@ def run(args):
             os.kill(os.getpid(), signal.SIGTERM)
             raise AssertionError("not reached")
 
+# as from a terminal (a background job of a script inherits SIGINT ignored, and stays so)
+signal.signal(signal.SIGINT, signal.default_int_handler)
+signal.signal(signal.SIGTERM, signal.SIG_DFL)
 _run(types.SimpleNamespace(command="plan", _module=types.SimpleNamespace(run=run)))
 """
     for sig, word in (("SIGTERM", "terminated"), ("SIGINT", "interrupted")):

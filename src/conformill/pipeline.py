@@ -396,7 +396,15 @@ def _physical_memory() -> float | None:
         return None
 
 
-def _check_size(mesh: Mesh, area: float, flat_ls: float, memory: float | None = None) -> None:
+def _sample_spacing(mesh: Mesh, flat_ls: float) -> float:
+    """The planner's dense sample spacing on ``mesh``: about one edge (the fitted fields are
+    linear inside a face), never coarser than a third of the flat side step."""
+    edges = np.linalg.norm(mesh.V[mesh.F[:, 1]] - mesh.V[mesh.F[:, 0]], axis=1)
+    return min(float(np.median(edges)), flat_ls / 3.0)
+
+
+def _check_size(mesh: Mesh, area: float, flat_ls: float, memory: float | None = None,
+                spacing: float | None = None) -> None:
     """Refuse, before any work, a plan that cannot fit in memory (PlanningError, exit 3).
 
     Where the part faces the tool the paths are never wider apart than the flat side
@@ -410,9 +418,9 @@ def _check_size(mesh: Mesh, area: float, flat_ls: float, memory: float | None = 
     if memory is None:
         return
     feed_m = area / flat_ls / 1000.0
-    # the planner's dense samples (pipeline.plan's seg_len) per metre of that feed
-    edge = float(np.median(np.linalg.norm(mesh.V[mesh.F[:, 1]] - mesh.V[mesh.F[:, 0]], axis=1)))
-    per_m = max(_BYTES_PER_FEED_M, 1000.0 / min(edge, flat_ls / 3.0) * _BYTES_PER_SAMPLE)
+    # the planner's dense samples (spacing: _sample_spacing, given or found) per metre of that feed
+    spacing = _sample_spacing(mesh, flat_ls) if spacing is None else spacing
+    per_m = max(_BYTES_PER_FEED_M, 1000.0 / spacing * _BYTES_PER_SAMPLE)
     if feed_m * per_m > memory:
         ext = mesh.V.max(0) - mesh.V.min(0)
         raise PlanningError(
@@ -481,7 +489,8 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
                             + (f" (with its {stock:g} mm of stock)" if stock > 0 else ""))
 
     flat_ls = float(side_interval(h, r, np.zeros(1))[0][0])
-    _check_size(mesh, total_area, flat_ls)
+    spacing = _sample_spacing(mesh, flat_ls)
+    _check_size(mesh, total_area, flat_ls, spacing=spacing)
     # Forward chord tolerance. Over a concave stretch the straight move rides above the
     # surface by up to the chord deviation, and that material adds to the scallop: with
     # e close to h the scallop reached about 1.4 h (measured, zigzag, h = e = 0.01). So the
@@ -552,10 +561,8 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
                             "" if job.pencil else "; --pencil adds passes where the ball wedges against them "
                             "(--scan: the settings for a scanned part, the pencil among them)")
 
-        # dense sampling: about one mesh edge (the fitted fields are linear inside a face), never
-        # coarser than a third of the flat side step
-        E_ = np.linalg.norm(fmesh.V[fmesh.F[:, 1]] - fmesh.V[fmesh.F[:, 0]], axis=1)
-        seg_len = min(float(np.median(E_)), flat_ls / 3.0)
+        # dense sampling: about one edge of the mesh the planner sees (the input's unless split)
+        seg_len = spacing if fmesh is mesh else _sample_spacing(fmesh, flat_ls)
         sigma = np.median(q.sigma[np.isfinite(q.sigma) & (q.sigma > 0)])
         delta = seg_len / sigma
         planner = Planner(surface, params, seg_len, concave_cap=flat_ls if job.concave_steps == "flat" else None,

@@ -143,7 +143,7 @@ def table(summary: dict) -> str:
     sp = g.get("spindle")
     if sp and sp["feed_blocks_stopped"]:
         out.append(f"spindle: {sp['feed_blocks_stopped']} feed block(s) run with the spindle stopped (no M3/M4 before "
-                   f"them, or after an M5), the first on line {sp['first_line']}: start it by hand before running "
+                   f"them, or after an M5 or a tool change), the first on line {sp['first_line']}: start it by hand before running "
                    f"the program")
     if g.get("holder") is not None:
         out.append(holder_text(g["holder"]))

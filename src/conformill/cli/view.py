@@ -75,7 +75,7 @@ def run(args) -> int:
     from conformill.planning.steps import check_stock  # numba: not at the CLI's import
 
     check_stock(args.stock, args.tool_radius, ConformillError, "--stock")
-    check_writable(args.output, inputs=(args.mesh, getattr(args, "program", None)))
+    check_writable(args.output, inputs=(args.mesh, args.program))
     mesh = read_mesh(args.mesh, scale=args.scale)
     info: dict = {"mesh file": Path(args.mesh).name}
     if args.scale != 1.0:

@@ -142,11 +142,10 @@ def all_or_nothing(*paths):
 
     A command that writes several outputs (program, report, plot, viewer) leaves none of
     them behind when a later one cannot be made: a file that did not exist is removed, and
-    a file that existed before is put back as it was (one that could not be kept stays as
-    the block left it) (it is kept under a hidden name beside
-    it, a hard link where the file system allows, a copy otherwise, until the block ends;
-    a hard link keeps the old contents because every writer replaces its file by a rename,
-    :func:`atomic_path`).
+    a file that existed before is put back as it was. Until the block ends it is kept under
+    a hidden name beside it: a hard link where the file system allows (it keeps the old
+    contents because every writer replaces its file by a rename, :func:`atomic_path`), a
+    copy otherwise; one that could be neither stays as the block left it.
     """
     before, kept = {}, {}
 

@@ -5,7 +5,7 @@ import logging
 import numpy as np
 import pytest
 
-from conformill.errors import PlanningError
+from conformill.errors import JobValueError, PlanningError
 from conformill.mesh import synthetic
 from conformill.pipeline import Job, plan, with_overrides
 
@@ -101,32 +101,38 @@ def test_adjacent_paths_never_farther_than_allowed():
 
 
 @pytest.mark.parametrize(
-    "kw, word",
+    "kw, word, code",
     [
-        (dict(scallop=4.0), "scallop"),
-        (dict(scallop=-0.1), "scallop"),
-        (dict(tolerance=0.0), "tolerance"),
-        (dict(tool_radius=float("nan")), "radius"),
-        (dict(pattern="raster"), "pattern"),
-        (dict(feed=0.0), "feed"),
-        (dict(settle=-0.1), "settle"),
-        (dict(settle=float("nan")), "settle"),
-        (dict(fit="coarse"), "fit"),
-        (dict(pencil=True, pencil_density=0.0), "pencil-density"),
-        (dict(pencil=True, pencil_density=float("inf")), "pencil-density"),
-        (dict(pencil=True, pencil_search="grid"), "pencil-search"),
+        (dict(scallop=4.0), "scallop", 3),
+        (dict(scallop=-0.1), "scallop", 2),
+        (dict(tolerance=0.0), "tolerance", 2),
+        (dict(tool_radius=float("nan")), "radius", 2),
+        (dict(pattern="raster"), "pattern", 2),
+        (dict(feed=0.0), "feed", 2),
+        (dict(settle=-0.1), "settle", 2),
+        (dict(settle=float("nan")), "settle", 2),
+        (dict(fit="coarse"), "fit", 2),
+        (dict(pencil=True, pencil_density=0.0), "pencil-density", 2),
+        (dict(pencil=True, pencil_density=float("inf")), "pencil-density", 2),
+        (dict(pencil=True, pencil_search="grid"), "pencil-search", 2),
+        (dict(blend=4.5), "larger than the tool radius", 3),
+        (dict(blend=-1.0), "blend", 2),
+        (dict(coolant="oil"), "coolant", 2),
     ],
 )
-def test_bad_job_values_are_refused(kw, word):
+def test_bad_job_values_are_refused(kw, word, code):
+    # exit code 2: a malformed value (JobValueError); 3: values that cannot be met (h >= r)
     part = synthetic.plane(size=10, spacing=2)
-    with pytest.raises(PlanningError, match=word):
+    with pytest.raises(PlanningError, match=word) as ei:
         plan(part, Job(**{**dict(tool_radius=R_TOOL, scallop=H), **kw}))
+    assert ei.value.exit_code == code and isinstance(ei.value, JobValueError) == (code == 2)
 
 
 def test_safe_z_below_part_is_refused():
     part = synthetic.sphere_cap(R=30, radius_xy=10, spacing=2)
-    with pytest.raises(PlanningError, match="safe-z"):
+    with pytest.raises(PlanningError, match="safe-z") as ei:
         plan(part, Job(tool_radius=2, scallop=0.1, safe_z=0.0))
+    assert ei.value.exit_code == 3  # a finite height, not met on this part
 
 
 def test_a_plan_too_large_for_memory_is_refused_before_any_work():
@@ -141,8 +147,9 @@ def test_a_plan_too_large_for_memory_is_refused_before_any_work():
     assert f"{feed_m / 1000:.4g} km" in str(ei.value)
     # on this machine: the same plane read as metres (x 1e5: 16 km^2) is refused by plan()
     big = synthetic.plane(size=4e6, spacing=2e5)
-    with pytest.raises(PlanningError, match="units"):
+    with pytest.raises(PlanningError, match="units") as ei:
         plan(big, Job(tool_radius=R_TOOL, scallop=H))
+    assert ei.value.exit_code == 3 and not isinstance(ei.value, JobValueError)
 
 
 def test_a_tiny_scallop_is_refused_by_its_samples_memory(monkeypatch):

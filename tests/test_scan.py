@@ -59,9 +59,9 @@ def test_without_scan_nothing_changes(tmp_path):
 
 
 @pytest.mark.parametrize("opt, value", [("--pencil-left", "-1"), ("--hop-lifted", "nan")])
-def test_bad_values_beside_scan_exit_3_without_output(tmp_path, capsys, opt, value):
+def test_bad_values_beside_scan_exit_2_without_output(tmp_path, capsys, opt, value):
     out = tmp_path / "p.nc"
-    assert main(COMMON + ["--scan", opt, value, "-o", str(out)]) == 3
+    assert main(COMMON + ["--scan", opt, value, "-o", str(out)]) == 2
     err = capsys.readouterr().err
     assert "Traceback" not in err and opt.lstrip("-") in err
     assert not out.exists()

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from conformill.errors import PlanningError
+from conformill.errors import JobValueError, PlanningError
 from conformill.planning.steps import (
     check_params,
     domain_forward_step,
@@ -227,23 +227,27 @@ class TestCheckParams:
         assert (p.tool_radius, p.scallop, p.tolerance) == (4.0, 0.5, 0.01)
 
     @pytest.mark.parametrize(
-        "args, match",
+        "args, match, code",
         [
-            ((4.0, 4.0, 0.01), "scallop height 4 mm must be smaller than the tool radius 4"),
-            ((4.0, 5.0, 0.01), "smaller than the tool radius"),
-            ((4.0, 0.0, 0.01), "scallop height must be finite and > 0"),
-            ((4.0, -1.0, 0.01), "scallop height"),
-            ((4.0, 0.1, 0.0), "chord tolerance must be finite and > 0"),
-            ((4.0, 0.1, -0.01), "chord tolerance"),
-            ((0.0, 0.1, 0.01), "tool radius must be finite and > 0"),
-            ((float("nan"), 0.1, 0.01), "tool radius"),
-            ((4.0, float("nan"), 0.01), "scallop height"),
-            ((4.0, 0.1, float("inf")), "chord tolerance"),
-            ((4.0, "abc", 0.01), "scallop height must be a number"),
-            ((None, 0.1, 0.01), "tool radius must be a number"),
+            ((4.0, 4.0, 0.01), "scallop height 4 mm must be smaller than the tool radius 4", 3),
+            ((4.0, 5.0, 0.01), "smaller than the tool radius", 3),
+            ((4.0, 0.0, 0.01), "scallop height must be finite and > 0", 2),
+            ((4.0, -1.0, 0.01), "scallop height", 2),
+            ((4.0, 0.1, 0.0), "chord tolerance must be finite and > 0", 2),
+            ((4.0, 0.1, -0.01), "chord tolerance", 2),
+            ((0.0, 0.1, 0.01), "tool radius must be finite and > 0", 2),
+            ((float("nan"), 0.1, 0.01), "tool radius", 2),
+            ((4.0, float("nan"), 0.01), "scallop height", 2),
+            ((4.0, 0.1, float("inf")), "chord tolerance", 2),
+            ((4.0, "abc", 0.01), "scallop height must be a number", 2),
+            ((None, 0.1, 0.01), "tool radius must be a number", 2),
         ],
     )
-    def test_rejects(self, args, match):
+    def test_rejects(self, args, match, code):
+        # 2: a malformed value (JobValueError, still a PlanningError); 3: h >= r, a plan
+        # that cannot be met
         with pytest.raises(PlanningError, match=match) as ei:
             check_params(*args)
-        assert ei.value.exit_code == 3
+        assert ei.value.exit_code == code
+        assert isinstance(ei.value, JobValueError) == (code == 2)
+

@@ -178,7 +178,10 @@ def test_cli_stock_header_report_and_verify(tmp_path, capsys):
 def test_cli_bad_stock(tmp_path, capsys):
     part = "sample:patch"
     out = tmp_path / "b.nc"
-    assert main(["plan", part, "--tool-radius", "4", "--scallop", "0.1", "--stock", "-4", "-o", str(out)]) == 3
+    # S <= -r: a ball of no size, a malformed value: 2, as from verify and view
+    assert main(["plan", part, "--tool-radius", "4", "--scallop", "0.1", "--stock", "-4", "-o", str(out)]) == 2
+    assert "stock" in capsys.readouterr().err and not out.exists()
+    assert main(["plan", part, "--tool-radius", "4", "--scallop", "0.1", "--stock", "nan", "-o", str(out)]) == 2
     assert "stock" in capsys.readouterr().err and not out.exists()
     assert main(["plan", part, "--tool-radius", "4", "--scallop", "0.1", "--stock", "lots", "-o", str(out)]) == 2
     assert not out.exists()
@@ -200,8 +203,10 @@ def test_check_stock_values_and_messages():
     z = check_stock(-0.0, 4.0)
     assert z == 0.0 and math.copysign(1.0, z) == 1.0  # -0.0 written as 0.0
     assert check_stock(-9.0, None) == -9.0  # no radius: only finite
-    with pytest.raises(PlanningError, match=r"stock must be a finite number of mm above minus the tool radius \(-4\)"):
+    with pytest.raises(PlanningError, match=r"stock must be a finite number of mm above minus the tool radius \(-4\)") \
+            as ei:
         check_stock(-4.0, 4.0)
+    assert ei.value.exit_code == 2  # a JobValueError: a malformed value, as from verify and view
     for bad in (float("nan"), float("inf"), True):
         with pytest.raises(ConformillError, match=r"^--stock must be a finite number of mm"):
             check_stock(bad, 4.0, ConformillError, "--stock")

@@ -11,6 +11,7 @@ __version__ = "0.1.0"
 from conformill.errors import (  # noqa: E402
     ConformillError,
     GCodeError,
+    JobValueError,
     MeshError,
     OutputError,
     ParameterizationError,
@@ -37,6 +38,7 @@ __all__ = [
     "__version__",
     "ConformillError",
     "GCodeError",
+    "JobValueError",
     "MeshError",
     "OutputError",
     "ParameterizationError",

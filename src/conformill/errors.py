@@ -4,6 +4,19 @@ Every error raised on purpose by the library derives from :class:`ConformillErro
 Messages say *what* is wrong and *where* (vertex ids, boundary loops, line numbers), so
 that the CLI can print them on one line. The CLI maps them to exit codes:
 ``exit_code`` 2 for bad input, 3 for a plan that cannot be met.
+
+Which job checks give which code:
+
+- 2 (:class:`JobValueError`): a value that is not a number, not finite, out of its own
+  range (a radius, scallop, tolerance, feed or density <= 0, a settle or lift below 0, a
+  stock at or below minus the tool radius, i.e. a ball of no size), an unknown word, a
+  feed written ``F0``, a spindle below 1 rpm, options that need another (``pencil-left``
+  without the fold pencil). The same mistake gets 2 from every command.
+- 3 (:class:`PlanningError`): well-formed values that cannot be met together or on this
+  part: a scallop at or above the tool radius, a blend larger than the tool radius, a
+  safe height below the part, a program too large for the memory, a parameterization with
+  flipped faces, a side step that collapses or too many paths, a holder that meets the
+  part at the stick-out given.
 """
 
 from __future__ import annotations
@@ -27,6 +40,18 @@ class PlanningError(ConformillError, ValueError):
     """The requested plan cannot be met (tool, tolerances, geometry)."""
 
     exit_code = 3
+
+
+class JobValueError(PlanningError):
+    """A job value is malformed: not a number, not finite, out of its own range, or an
+    unknown word (exit code 2, bad input, as the same mistake gets from every command).
+
+    A :class:`PlanningError`, so that callers catching that keep working; a job whose
+    values are well formed but cannot be met raises :class:`PlanningError` itself (exit
+    code 3).
+    """
+
+    exit_code = 2
 
 
 class OutputError(ConformillError):

@@ -15,7 +15,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from conformill import __version__
-from conformill.errors import PlanningError
+from conformill.errors import JobValueError, PlanningError
 from conformill.geometry.surface import DomainSurface
 from conformill.output.gcode import coolant_on, path_control, tool_number
 from conformill.patterns.family import Planner
@@ -230,55 +230,66 @@ _LEAST_FEED = 0.001
 
 
 def check_job(job: Job) -> PathParams:
-    """Refuse a job that cannot be met (PlanningError, exit 3); return its checked cutting
-    parameters (:func:`conformill.planning.steps.check_params`)."""
+    """Refuse a job before any work; return its checked cutting parameters
+    (:func:`conformill.planning.steps.check_params`).
+
+    Raises
+    ------
+    JobValueError
+        A malformed value (exit code 2): not a number, not finite, out of its own range, an
+        unknown word, a feed written ``F0``, a spindle below 1 rpm, ``pencil_left``
+        without the fold pencil.
+    PlanningError
+        Well-formed values that cannot be met together (exit code 3): a scallop at or
+        above the tool radius, a blend larger than the tool radius.
+    """
     if job.pattern not in PATTERNS:
-        raise PlanningError(f"unknown pattern {job.pattern!r}; choose one of {', '.join(PATTERNS)}")
+        raise JobValueError(f"unknown pattern {job.pattern!r}; choose one of {', '.join(PATTERNS)}")
     params = check_params(job.tool_radius, job.scallop, job.tolerance, job.stock)
     for name in ("feed", "max_step", "clearance", "rapid"):
         v = getattr(job, name)
         if not np.isfinite(v) or v <= 0:
-            raise PlanningError(f"{name.replace('_', '-')} must be a positive number, got {v}")
+            raise JobValueError(f"{name.replace('_', '-')} must be a positive number, got {v}")
     if job.plunge_feed is not None and (not np.isfinite(job.plunge_feed) or job.plunge_feed <= 0):
-        raise PlanningError(f"plunge-feed must be a positive number, got {job.plunge_feed}")
+        raise JobValueError(f"plunge-feed must be a positive number, got {job.plunge_feed}")
     for name, v in (("feed", job.feed), ("plunge-feed", job.plunge_rate)):
         if float(f"{v:.3f}") == 0.0:  # F is written with 3 decimals (output.gcode)
-            raise PlanningError(f"{name} {v:g} mm/min would be written F0; it must be at least {_LEAST_FEED:g}")
+            raise JobValueError(f"{name} {v:g} mm/min would be written F0; it must be at least {_LEAST_FEED:g}")
     if job.spindle is not None and not (np.isfinite(job.spindle) and job.spindle >= 1.0):
-        raise PlanningError(f"spindle must be a speed of at least 1 rpm, got {job.spindle}")
+        raise JobValueError(f"spindle must be a speed of at least 1 rpm, got {job.spindle}")
     if job.safe_z is not None and not np.isfinite(job.safe_z):
-        raise PlanningError(f"safe-z must be a finite height (mm), got {job.safe_z}")
+        raise JobValueError(f"safe-z must be a finite height (mm), got {job.safe_z}")
     if not (np.isfinite(job.settle) and job.settle >= 0):
-        raise PlanningError(f"settle must be a non-negative number, got {job.settle}")
+        raise JobValueError(f"settle must be a non-negative number, got {job.settle}")
     if job.orient not in ("none", "auto"):
-        raise PlanningError(f"orient must be 'none' or 'auto', got {job.orient!r}")
+        raise JobValueError(f"orient must be 'none' or 'auto', got {job.orient!r}")
     if job.concave_steps not in ("flat", "exact"):
-        raise PlanningError(f"concave_steps must be 'flat' or 'exact', got {job.concave_steps!r}")
+        raise JobValueError(f"concave_steps must be 'flat' or 'exact', got {job.concave_steps!r}")
     if job.spacing not in ("adaptive", "paper", "local"):
-        raise PlanningError(f"spacing must be 'adaptive', 'paper' or 'local', got {job.spacing!r}")
+        raise JobValueError(f"spacing must be 'adaptive', 'paper' or 'local', got {job.spacing!r}")
     if job.fit not in ("mesh", "split"):
-        raise PlanningError(f"fit must be 'mesh' or 'split', got {job.fit!r}")
+        raise JobValueError(f"fit must be 'mesh' or 'split', got {job.fit!r}")
     if not (np.isfinite(job.pencil_density) and job.pencil_density > 0):
-        raise PlanningError(f"pencil-density must be a positive number, got {job.pencil_density}")
+        raise JobValueError(f"pencil-density must be a positive number, got {job.pencil_density}")
     if job.pencil_search not in PENCIL_SEARCHES:
-        raise PlanningError(f"pencil-search must be {' or '.join(map(repr, sorted(PENCIL_SEARCHES)))}, "
+        raise JobValueError(f"pencil-search must be {' or '.join(map(repr, sorted(PENCIL_SEARCHES)))}, "
                             f"got {job.pencil_search!r}")
     if job.pencil_left is not None:
         if not (np.isfinite(job.pencil_left) and job.pencil_left >= 0):
-            raise PlanningError(f"pencil-left must be a number >= 0 (x h), got {job.pencil_left}")
+            raise JobValueError(f"pencil-left must be a number >= 0 (x h), got {job.pencil_left}")
         if not (job.pencil and job.pencil_search == "folds"):
-            raise PlanningError("pencil-left keeps fold points: it needs the fold pencil (--pencil --pencil-search "
+            raise JobValueError("pencil-left keeps fold points: it needs the fold pencil (--pencil --pencil-search "
                                 "folds)")
     if not (np.isfinite(job.hop_lift) and job.hop_lift >= 0):
-        raise PlanningError(f"hop-lifted must be a number >= 0 (mm; 0: off), got {job.hop_lift}")
+        raise JobValueError(f"hop-lifted must be a number >= 0 (mm; 0: off), got {job.hop_lift}")
     if isinstance(job.blend, str) and job.blend != "off":
-        raise PlanningError(f"blend must be a number >= 0 (mm) or 'off', got {job.blend!r}")
+        raise JobValueError(f"blend must be a number >= 0 (mm) or 'off', got {job.blend!r}")
     try:  # the writer's own checks, refused before any work
         path_control(job.blend_tolerance)
         tool_number(job.tool_number)
         coolant_on(job.coolant)
-    except PlanningError as exc:
-        raise PlanningError(str(exc).replace("G-code: ", "", 1)) from None
+    except PlanningError as exc:  # JobValueError: the same type, without the writer's prefix
+        raise type(exc)(str(exc).replace("G-code: ", "", 1)) from None
     b = job.blend_tolerance  # None, or a number path_control took
     if b is not None and b > job.tool_radius:
         raise PlanningError(f"blend {b:g} mm is larger than the tool radius {job.tool_radius:g} mm: the controller "
@@ -447,9 +458,12 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
 
     Raises
     ------
+    JobValueError
+        Malformed job values (:func:`check_job`; exit code 2).
     PlanningError
-        Bad job values, a side step that collapses, a safe height below the part, a
-        part whose program could not fit in this machine's memory (wrong units).
+        A job that cannot be met (exit code 3): a scallop at or above the tool radius, a
+        side step that collapses, a safe height below the part, a part whose program
+        could not fit in this machine's memory (wrong units).
     """
     from conformill.cutter import BallCutter
     from conformill.param import parameterize

@@ -145,9 +145,9 @@ def _corners(text):
     try:
         c = tuple(int(x) for x in text.split(","))
     except ValueError:
-        raise PlanningError(f"--corners must be four vertex ids like 0,10,20,30, got {text!r}") from None
+        raise ConformillError(f"--corners must be four vertex ids like 0,10,20,30, got {text!r}") from None
     if len(c) != 4:
-        raise PlanningError(f"--corners needs four vertex ids, got {len(c)}")
+        raise ConformillError(f"--corners needs four vertex ids, got {len(c)}")
     return c
 
 
@@ -175,7 +175,7 @@ def run(args) -> int:
     check_writable(args.output, args.report, args.plot, args.html, inputs=(args.mesh,))
     if args.threads is not None:
         if args.threads < 1:
-            raise PlanningError(f"--threads must be at least 1, got {args.threads}")
+            raise ConformillError(f"--threads must be at least 1, got {args.threads}")
         import numba
 
         numba.set_num_threads(min(args.threads, numba.config.NUMBA_NUM_THREADS))
@@ -198,14 +198,14 @@ def run(args) -> int:
     check_holder(args.holder_radius, args.stick_out, job.tool_radius)
     check_steps(args.holder_step, args.holder_radius)
     if args.replan < 0:
-        raise PlanningError(f"--replan must be 0 or more, got {args.replan}")
+        raise ConformillError(f"--replan must be 0 or more, got {args.replan}")
     if args.verify_scallop is not None or args.replan > 0:  # asking for a judged height is asking for the check
         args.verify = True
     if args.verify and args.verify_samples < 1:
-        raise PlanningError(f"--verify-samples must be >= 1, got {args.verify_samples}")
+        raise ConformillError(f"--verify-samples must be >= 1, got {args.verify_samples}")
     judge_h = job.scallop if args.verify_scallop is None else float(args.verify_scallop)
     if not (judge_h > 0 and judge_h < float("inf")):
-        raise PlanningError(f"--verify-scallop must be a positive number, got {args.verify_scallop}")
+        raise ConformillError(f"--verify-scallop must be a positive number, got {args.verify_scallop}")
     from conformill import warm
 
     # on a first run a second process compiles the later stages' kernels (not with --threads 1)

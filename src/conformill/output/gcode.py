@@ -58,7 +58,7 @@ import unicodedata
 import numpy as np
 from numba import njit
 
-from conformill.errors import OutputError, PlanningError
+from conformill.errors import JobValueError, OutputError, PlanningError
 from conformill.output.atomic import atomic_path
 
 __all__ = ["COOLANTS", "coolant_on", "format_gcode", "path_control", "tool_number", "write_gcode"]
@@ -106,11 +106,12 @@ def format_gcode(toolpath, *, feed: float, plunge_feed: float | None = None,
 
     Raises
     ------
+    JobValueError
+        A feed/speed that is not positive, a ``blend`` that is negative, not finite or
+        below 1e-6 mm, a ``tool`` that is not an integer >= 1, or an unknown ``coolant``.
     PlanningError
         No passes, a pass that is not ``(k, 3)`` finite with ``k >= 1``, a point above
-        ``safe_z``, a non-finite ``safe_z``, a feed/speed that is not positive, or a
-        ``blend`` that is negative, not finite or below 1e-6 mm, a ``tool`` that is not
-        an integer >= 1, or an unknown ``coolant``.
+        ``safe_z``, a non-finite ``safe_z``.
     """
     text, _ = _program(toolpath, feed, plunge_feed, spindle, header, blend, tool, coolant)
     return text
@@ -132,7 +133,7 @@ def write_gcode(path, toolpath, *, feed: float, plunge_feed: float | None = None
 
     Raises
     ------
-    PlanningError
+    JobValueError, PlanningError
         See :func:`format_gcode`.
     OutputError
         The folder does not exist or the file cannot be written (no file is left behind).
@@ -156,9 +157,9 @@ def _positive(name, value):
     try:
         v = float(value)
     except (TypeError, ValueError):
-        raise PlanningError(f"G-code: {name} must be a number, got {value!r}") from None
+        raise JobValueError(f"G-code: {name} must be a number, got {value!r}") from None
     if not (math.isfinite(v) and v > 0):
-        raise PlanningError(f"G-code: {name} must be positive and finite, got {value!r}")
+        raise JobValueError(f"G-code: {name} must be positive and finite, got {value!r}")
     return v
 
 
@@ -176,25 +177,25 @@ def path_control(blend) -> str | None:
 
     Raises
     ------
-    PlanningError
+    JobValueError
         ``blend`` not a number (a bool or a string included), negative, not finite, above
         1000 mm, or positive but below 1e-6 mm (0 when rounded down).
     """
     if blend is None:
         return None
     if isinstance(blend, (bool, np.bool_, str)):
-        raise PlanningError(f"G-code: blend must be a number (mm), got {blend!r}")
+        raise JobValueError(f"G-code: blend must be a number (mm), got {blend!r}")
     try:
         b = float(blend)
     except (TypeError, ValueError):
-        raise PlanningError(f"G-code: blend must be a number (mm), got {blend!r}") from None
+        raise JobValueError(f"G-code: blend must be a number (mm), got {blend!r}") from None
     if not (math.isfinite(b) and 0 <= b <= _MAX_BLEND):
-        raise PlanningError(f"G-code: blend must be a number from 0 to {_MAX_BLEND:g} mm, got {blend!r}")
+        raise JobValueError(f"G-code: blend must be a number from 0 to {_MAX_BLEND:g} mm, got {blend!r}")
     if b == 0:
         return "G61"
     micro = math.floor(round(b * 1e6, 3))  # whole 1e-6 mm, rounded down
     if micro == 0:
-        raise PlanningError(f"G-code: blend {b!r} mm is below the 1e-6 mm that can be written; use 0 for exact path")
+        raise JobValueError(f"G-code: blend {b!r} mm is below the 1e-6 mm that can be written; use 0 for exact path")
     q, r = divmod(micro, 10**6)
     return f"G64 P{q}" + (f".{r:06d}".rstrip("0") if r else "") + " Q0"
 
@@ -204,13 +205,13 @@ def coolant_on(coolant) -> str | None:
 
     Raises
     ------
-    PlanningError
+    JobValueError
         An unknown kind.
     """
     if coolant is None:
         return None
     if not isinstance(coolant, str) or coolant not in COOLANTS:
-        raise PlanningError(f"G-code: coolant must be one of {', '.join(COOLANTS)}, got {coolant!r}")
+        raise JobValueError(f"G-code: coolant must be one of {', '.join(COOLANTS)}, got {coolant!r}")
     return COOLANTS[coolant]
 
 
@@ -219,14 +220,14 @@ def tool_number(tool) -> int | None:
 
     Raises
     ------
-    PlanningError
+    JobValueError
         Not an integer (a float with a fraction, a string, a bool), or below 1.
     """
     if tool is None:
         return None
     if isinstance(tool, (bool, np.bool_)) or not isinstance(tool, (int, np.integer, float, np.floating)) \
             or not float(tool).is_integer() or not 1 <= tool < 2**31:
-        raise PlanningError(f"G-code: the tool number must be an integer from 1 to {2**31 - 1}, got {tool!r}")
+        raise JobValueError(f"G-code: the tool number must be an integer from 1 to {2**31 - 1}, got {tool!r}")
     return int(tool)
 
 

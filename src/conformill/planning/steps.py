@@ -61,7 +61,7 @@ import math
 import numpy as np
 from numba import njit
 
-from conformill.errors import PlanningError
+from conformill.errors import JobValueError, PlanningError
 from conformill.geometry.differential import curvature_in
 from conformill.types import PathParams
 
@@ -70,9 +70,9 @@ def _positive(name: str, value) -> float:
     try:
         x = float(value)
     except (TypeError, ValueError):
-        raise PlanningError(f"{name} must be a number, got {value!r}") from None
+        raise JobValueError(f"{name} must be a number, got {value!r}") from None
     if not math.isfinite(x) or x <= 0.0:
-        raise PlanningError(f"{name} must be finite and > 0 mm, got {value!r}")
+        raise JobValueError(f"{name} must be finite and > 0 mm, got {value!r}")
     return x
 
 
@@ -95,10 +95,12 @@ def check_params(tool_radius, scallop, tolerance, stock=0.0) -> PathParams:
 
     Raises
     ------
+    JobValueError
+        A value is not a finite positive number, or the stock is not a finite number above
+        ``-r`` (exit code 2: malformed values).
     PlanningError
-        A value is not a finite positive number, ``scallop >= tool_radius`` (a ball of
-        radius ``r`` cannot leave a cusp of ``r`` or more between touching passes), or the
-        stock is not a finite number above ``-r``.
+        ``scallop >= tool_radius``: a ball of radius ``r`` cannot leave a cusp of ``r`` or
+        more between touching passes (exit code 3: a plan that cannot be met).
     """
     r = _positive("tool radius", tool_radius)
     h = _positive("scallop height", scallop)
@@ -109,13 +111,14 @@ def check_params(tool_radius, scallop, tolerance, stock=0.0) -> PathParams:
     return PathParams(tool_radius=r, scallop=h, tolerance=e, stock=s)
 
 
-def check_stock(stock, tool_radius: float | None, error: type[Exception] = PlanningError,
+def check_stock(stock, tool_radius: float | None, error: type[Exception] = JobValueError,
                 name: str = "stock") -> float:
     """The stock to leave as a float, checked: a finite number of mm above ``-tool_radius``.
 
-    The one check behind ``plan --stock`` (a :class:`PlanningError`, exit 3), ``verify`` and
-    ``view --stock`` (a :class:`~conformill.errors.ConformillError`, exit 2) and
-    :func:`conformill.verify.simulate.verify`.
+    The one check behind ``plan --stock`` (a :class:`~conformill.errors.JobValueError`),
+    ``verify`` and ``view --stock`` (a :class:`~conformill.errors.ConformillError`) and
+    :func:`conformill.verify.simulate.verify`: exit code 2 from each (a stock at or below
+    ``-tool_radius`` leaves a ball of no size, a malformed value like a negative radius).
 
     Parameters
     ----------
@@ -452,7 +455,7 @@ def domain_side_step(l_s, E, F, G, across: str = "u"):
 
     Raises
     ------
-    PlanningError
+    JobValueError
         ``across`` is not "u" or "v".
     """
     E, F, G, det = _det(E, F, G)
@@ -461,7 +464,7 @@ def domain_side_step(l_s, E, F, G, across: str = "u"):
     elif across == "v":
         num = E
     else:
-        raise PlanningError(f"domain_side_step: across must be 'u' or 'v', got {across!r}")
+        raise JobValueError(f"domain_side_step: across must be 'u' or 'v', got {across!r}")
     return np.asarray(l_s, dtype=np.float64) * np.sqrt(num / det)
 
 
@@ -482,7 +485,7 @@ def domain_forward_step(l_f, E, F, G, along: str = "v"):
 
     Raises
     ------
-    PlanningError
+    JobValueError
         ``along`` is not "u" or "v".
     """
     E, F, G, det = _det(E, F, G)
@@ -491,7 +494,7 @@ def domain_forward_step(l_f, E, F, G, along: str = "v"):
     elif along == "u":
         g = E
     else:
-        raise PlanningError(f"domain_forward_step: along must be 'u' or 'v', got {along!r}")
+        raise JobValueError(f"domain_forward_step: along must be 'u' or 'v', got {along!r}")
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(np.isfinite(det), np.asarray(l_f, dtype=np.float64) / np.sqrt(g), np.nan)
 

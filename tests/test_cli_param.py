@@ -77,6 +77,12 @@ def test_errors_leave_no_output(mesh_file, tmp_path, capsys):
                "--report", str(tmp_path / "r.json")])
     err = capsys.readouterr().err
     assert rc == 2 and "are not on the boundary loop" in err and err.count("\n") == 1
+    # a negative id: given with "=" (without, argparse reads it as an option and says so)
+    rc = main(["param", str(path), "--boundary", "rectangle", "--corners=-1,1,2,3", "-o", str(out)])
+    err = capsys.readouterr().err
+    assert rc == 2 and "corner vertex id -1 is not in the mesh (ids 0.." in err and err.count("\n") == 1
+    assert main(["param", str(path), "--boundary", "rectangle", "--corners", "-1,1,2,3", "-o", str(out)]) == 2
+    assert "write --corners=-1,1,2,3" in capsys.readouterr().err
     # corners with the circle boundary
     rc = main(["param", str(path), "--corners", "0,1,2,3", "-o", str(out)])
     assert rc == 2 and "--corners needs --boundary rectangle" in capsys.readouterr().err

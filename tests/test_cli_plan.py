@@ -201,7 +201,11 @@ def test_plan_programs_run_in_linuxcnc(part, tmp_path, pattern):
     (["--tool-radius", "4", "--scallop", "0.1", "--max-step", "0"], 2, "max-step"),
     (["--tool-radius", "4", "--scallop", "0.1", "--stock", "inf"], 2, "stock"),
     (["--tool-radius", "4", "--scallop", "0.1", "--threads", "0"], 2, "threads"),
-    (["--tool-radius", "4", "--scallop", "0.1", "--pattern", "zigzag", "--corners", "1,2"], 2, "corners"),
+    (["--tool-radius", "4", "--scallop", "0.1", "--corners", "0,1,2,3"], 2, "--pattern zigzag"),
+    # a ball far larger than the part: a mistake of units, refused at once with its value
+    # (it was planned for minutes, or failed with "not within the ball's reach")
+    (["--tool-radius", "1e300", "--scallop", "0.01"], 2, "tool radius 1e+300 mm is more than 100 times"),
+    (["--tool-radius", "1e9", "--scallop", "0.01"], 2, "--scale"),
     # well formed, but not met on this part
     (["--tool-radius", "4", "--scallop", "0.1", "--safe-z", "1"], 3, "safe-z"),
     (["--tool-radius", "4", "--scallop", "0.1", "--blend", "4.5"], 3, "larger than the tool radius"),
@@ -213,6 +217,35 @@ def test_bad_values_exit_without_output(part, tmp_path, capsys, args, code, word
     assert rc == code
     assert word in err.lower() and "Traceback" not in err and len(err.strip().splitlines()) == 1
     assert not out.exists() and not (tmp_path / "r.json").exists()
+
+
+def test_corners_starting_with_a_dash_and_ids_not_in_the_mesh(part, tmp_path, capsys):
+    # argparse reads "-1,1,2,3" as an option: the error says how to give it
+    out = tmp_path / "c.nc"
+    base = ["plan", str(part), "--pattern", "zigzag", "--tool-radius", "4", "--scallop", "0.3", "-o", str(out)]
+    assert main(base + ["--corners", "-1,1,2,3"]) == 2
+    err = capsys.readouterr().err
+    assert err.strip().splitlines()[-1] == ("conformill plan: error: argument --corners: expected one argument "
+                                            "('-1,1,2,3' starts with '-' and is read as an option: write "
+                                            "--corners=-1,1,2,3)")
+    n = len(trimesh.load(part, process=False).vertices)
+    for ids, bad in (("-1,1,2,3", -1), (f"0,1,2,{n}", n)):
+        assert main(base + [f"--corners={ids}"]) == 2
+        err = capsys.readouterr().err
+        assert err == f"conformill plan: error: corner vertex id {bad} is not in the mesh (ids 0..{n - 1})\n"
+    assert not out.exists()
+
+
+def test_a_value_starting_with_a_dash_gets_the_hint_on_any_option(part, tmp_path, capsys):
+    # "-1e-3" is no plain negative number to argparse: the option is left without its value
+    assert main(["plan", str(part), "--tool-radius", "4", "--scallop", "0.3", "--stock", "-1e-3",
+                 "-o", str(tmp_path / "s.nc")]) == 2
+    assert "write --stock=-1e-3)" in capsys.readouterr().err
+    assert main(["verify", str(part), "p.nc", "-r", "-1e-3"]) == 2
+    assert "write -r=-1e-3)" in capsys.readouterr().err
+    assert main(["plan", str(part), "--tool-radius", "4", "--scallop"]) == 2  # no value at all: no hint
+    assert "expected one argument\n" in capsys.readouterr().err
+    assert not (tmp_path / "s.nc").exists()
 
 
 def test_missing_output_folder(part, tmp_path, capsys):

@@ -123,6 +123,15 @@ def test_user_corners_are_validated():
         parameterize(m, boundary="rectangle", corners=(c[0], c[1], c[2]))
     with pytest.raises(ParameterizationError, match="four vertex ids"):
         parameterize(m, boundary="rectangle", corners="abcd")
+    # ids outside the mesh are named as such (a huge id allocated an array that large)
+    n = m.n_vertices
+    for bad in (-1, n, 10**15):
+        with pytest.raises(ParameterizationError, match=rf"^corner vertex id {bad} is not in the mesh \(ids 0..{n - 1}\)$"):
+            parameterize(m, boundary="rectangle", corners=(c[0], c[1], c[2], bad))
+    with pytest.raises(ParameterizationError, match=r"corner vertex id -3 is not in the mesh \(ids are 0 or more\)"):
+        corner_positions(loop, (c[0], c[1], c[2], -3))
+    with pytest.raises(ParameterizationError, match=r"corner vertices \[1000000000000000\] are not on the boundary"):
+        corner_positions(loop, (c[0], c[1], c[2], 10**15))
     with pytest.raises(ParameterizationError, match="only used with the rectangle"):
         parameterize(m, boundary="circle", corners=tuple(c))
 

@@ -118,6 +118,9 @@ def test_adjacent_paths_never_farther_than_allowed():
         (dict(blend=4.5), "larger than the tool radius", 3),
         (dict(blend=-1.0), "blend", 2),
         (dict(coolant="oil"), "coolant", 2),
+        # the plane is 10 mm across: a ball of radius above 1000 mm is a mistake of units
+        (dict(tool_radius=1000.5), r"tool radius 1000.5 mm is more than 100 times the part's size \(10 x 10 x 0 mm\)",
+         2),
     ],
 )
 def test_bad_job_values_are_refused(kw, word, code):

@@ -7,6 +7,8 @@ import pytest
 
 from conformill.errors import JobValueError, PlanningError
 from conformill.planning.steps import (
+    BALL_OVER_PART,
+    check_ball_size,
     check_params,
     domain_forward_step,
     domain_side_step,
@@ -251,3 +253,24 @@ class TestCheckParams:
         assert ei.value.exit_code == code
         assert isinstance(ei.value, JobValueError) == (code == 2)
 
+
+class TestCheckBallSize:
+    """A ball more than BALL_OVER_PART times the part's largest extent is refused (exit 2)."""
+
+    V = np.array([[0.0, 0.0, 0.0], [12.0, 0.0, 0.0], [0.0, 5.0, 2.0]])  # 12 x 5 x 2 mm
+
+    def test_bound(self):
+        check_ball_size(BALL_OVER_PART * 12.0, self.V)  # at the bound: kept
+        check_ball_size(4.0, self.V)
+        check_ball_size(1e300, np.zeros((0, 3)))  # no part, nothing to compare
+        with pytest.raises(JobValueError, match=r"^tool radius 1200.01 mm is more than 100 times the part's size "
+                                                r"\(12 x 5 x 2 mm\).*--scale") as ei:
+            check_ball_size(1200.01, self.V)
+        assert ei.value.exit_code == 2
+
+    def test_error_and_name(self):
+        from conformill.errors import ConformillError
+
+        with pytest.raises(ConformillError, match=r"^--tool-radius 1e\+300 mm is more than") as ei:
+            check_ball_size(1e300, self.V, ConformillError, "--tool-radius")
+        assert type(ei.value) is ConformillError

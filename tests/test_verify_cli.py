@@ -139,6 +139,23 @@ def test_reach_depth_is_the_functions_and_a_deeper_one_excuses_less(tmp_path, ca
     capsys.readouterr()
 
 
+def test_a_ball_far_larger_than_the_part_exit_2(files, tmp_path, capsys):
+    # the plane is 30 mm across: a radius above 3000 mm is a mistake of units (1e300 ended
+    # in an IndexError of the rapid check, with a traceback)
+    mesh, program = files
+    nc = program("good.nc")
+    rep, html = tmp_path / "r.json", tmp_path / "v.html"
+    for radius in ("1e300", "3001"):
+        assert main(["verify", str(mesh), str(nc), "-r", radius, "--scallop", "0.1", "--report", str(rep)]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith(f"conformill verify: error: --tool-radius {float(radius):g} mm is more than 100 times "
+                              f"the part's size (30 x 30 x 0 mm)") and err.count("\n") == 1, err
+        assert main(["view", str(mesh), str(nc), "--tool-radius", radius, "-o", str(html)]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith(f"conformill view: error: --tool-radius {float(radius):g} mm is more than 100 times")
+    assert not rep.exists() and not html.exists()
+
+
 def test_path_control_is_reported_not_simulated(files, tmp_path, capsys):
     mesh, program = files
     nc = program("good.nc")

@@ -259,6 +259,17 @@ def test_first_pairs_keeps_each_pair_once():
     assert np.array_equal(np.flatnonzero(keep), np.sort(first))
 
 
+def test_a_ball_far_larger_than_the_part_is_refused(flat):
+    # more than 100 times the part's size: a ConformillError naming it (an IndexError in
+    # the rapid check at 1e300 before)
+    prog = raster_program(np.arange(-24.0, 24.01, 4.0), -25, 25)
+    ext = flat.V.max(0) - flat.V.min(0)
+    with pytest.raises(ConformillError, match=r"^tool radius 1e\+300 mm is more than 100 times the part's size"):
+        verify(flat, prog, 1e300, n_samples=1000, scallop=0.1)
+    with pytest.raises(ConformillError, match="more than 100 times"):
+        verify(flat, prog, 100.0 * ext.max() * 1.001, n_samples=1000, scallop=0.1)
+
+
 def test_no_interior_sample_is_no_pass(flat):
     # a ball wider than the part: every sample lies within r of the boundary, so nothing is judged
     r = 40.0

@@ -20,7 +20,7 @@ from conformill.geometry.surface import DomainSurface
 from conformill.output.gcode import coolant_on, path_control, tool_number
 from conformill.patterns.family import Planner
 from conformill.passes import PassBuilder, threads_can_overlap
-from conformill.planning.steps import check_params, side_interval
+from conformill.planning.steps import check_ball_size, check_params, side_interval
 from conformill.types import PENCIL_SEARCHES, Mesh, PathParams, PlanResult, ToolPath
 
 log = logging.getLogger(__name__)
@@ -459,7 +459,8 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
     Raises
     ------
     JobValueError
-        Malformed job values (:func:`check_job`; exit code 2).
+        Malformed job values (:func:`check_job`), a ball far larger than the part
+        (:func:`conformill.planning.steps.check_ball_size`); exit code 2.
     PlanningError
         A job that cannot be met (exit code 3): a scallop at or above the tool radius, a
         side step that collapses, a safe height below the part, a part whose program
@@ -474,6 +475,7 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
     from conformill.patterns.zigzag import plan_zigzag
 
     params = check_job(job)
+    check_ball_size(params.tool_radius, mesh.V)
     timer = _Timer()
     r, h, e, stock = params.tool_radius, params.scallop, params.tolerance, params.stock
     # the cutter places the centres of a ball of radius r + stock on the part: the ball of

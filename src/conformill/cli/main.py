@@ -11,6 +11,7 @@ import argparse
 import contextlib
 import importlib
 import logging
+import re
 import sys
 import warnings
 
@@ -27,7 +28,32 @@ SUBCOMMANDS = {
 
 
 class _Parser(argparse.ArgumentParser):
-    """argparse that reports usage errors with exit code 2 (its default) on one line."""
+    """argparse that reports usage errors with exit code 2 (its default) on one line.
+
+    argparse reads a word that starts with '-' as an option unless it is a plain negative
+    number, so ``--corners -1,1,2,3`` or ``--stock -1e-3`` leave the option without its
+    value: the error then says to write ``--corners=-1,1,2,3``.
+    """
+
+    def parse_known_args(self, args=None, namespace=None):
+        self._words = list(sys.argv[1:] if args is None else args)
+        return super().parse_known_args(args, namespace)
+
+    def error(self, message):
+        super().error(message + _dash_hint(message, getattr(self, "_words", [])))
+
+
+def _dash_hint(message: str, words: list) -> str:
+    """For "argument --opt: expected one argument" where the word after the option starts
+    with '-': how to give it as the value (else "")."""
+    m = re.fullmatch(r"argument (\S+): expected one argument", message)
+    if not m:
+        return ""
+    names = m.group(1).split("/")
+    for opt, nxt in zip(words, words[1:]):
+        if opt in names and nxt.startswith("-") and len(nxt) > 1:
+            return f" ({nxt!r} starts with '-' and is read as an option: write {opt}={nxt})"
+    return ""
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -22,7 +22,9 @@ BOUNDARIES = ("circle", "rectangle")
 WEIGHTS = ("geodesic", "floater", "mean_value", "cotangent")
 
 
-def _corners(text: str):
+def corners_arg(text: str) -> tuple:
+    """``--corners i,j,k,l`` (param and plan): four integers (argparse reports anything else,
+    exit 2); whether they are boundary vertices in order is the parameterization's check."""
     try:
         vals = tuple(int(x) for x in text.replace(" ", "").split(","))
     except ValueError:
@@ -38,7 +40,7 @@ def add_arguments(parser) -> None:
                         help="domain: circle (contour/spiral paths) or rectangle (zigzag paths); default circle")
     parser.add_argument("--weights", choices=WEIGHTS, default="geodesic",
                         help="interior weights; default geodesic (the paper's); cotangent may flip faces")
-    parser.add_argument("--corners", type=_corners, default=None, metavar="i,j,k,l",
+    parser.add_argument("--corners", type=corners_arg, default=None, metavar="i,j,k,l",
                         help="rectangle corners: four boundary vertex ids in boundary order (default: automatic)")
     parser.add_argument("--scale", type=float, default=1.0, metavar="S",
                         help="multiply the mesh coordinates by S to get mm (e.g. 1000 for metres)")

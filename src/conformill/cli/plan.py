@@ -31,7 +31,10 @@ def add_arguments(p) -> None:
     p.add_argument("--orient", choices=["none", "auto"], default="none",
                    help="auto: turn the part so its mean normal is +Z")
     p.add_argument("--weights", default="geodesic", choices=["geodesic", "floater", "mean_value", "cotangent"])
-    p.add_argument("--corners", default=None, metavar="i,j,k,l", help="rectangle corners (zigzag)")
+    from conformill.cli.param import corners_arg
+
+    p.add_argument("--corners", type=corners_arg, default=None, metavar="i,j,k,l",
+                   help="rectangle corners (zigzag): four boundary vertex ids in boundary order")
     p.add_argument("--concave-steps", choices=["flat", "exact"], default="flat",
                    help="side step where the surface is concave: never wider than on a plane (flat, default) "
                         "or the paper's concave formula (exact)")
@@ -139,18 +142,6 @@ def _blend(text: str):
         raise argparse.ArgumentTypeError(f"expected a number (mm) or off, got {text!r}") from None
 
 
-def _corners(text):
-    if text is None:
-        return None
-    try:
-        c = tuple(int(x) for x in text.split(","))
-    except ValueError:
-        raise ConformillError(f"--corners must be four vertex ids like 0,10,20,30, got {text!r}") from None
-    if len(c) != 4:
-        raise ConformillError(f"--corners needs four vertex ids, got {len(c)}")
-    return c
-
-
 def _scan_defaults(args) -> None:
     """Fill the options ``--scan`` sets (:data:`conformill.pipeline.SCAN_RECIPE`) where the
     command line left them unset; ``--hop-lifted`` unset and no ``--scan`` is 0 (off)."""
@@ -179,10 +170,12 @@ def run(args) -> int:
         import numba
 
         numba.set_num_threads(min(args.threads, numba.config.NUMBA_NUM_THREADS))
+    if args.corners is not None and args.pattern != "zigzag":
+        raise ConformillError("--corners needs --pattern zigzag (the rectangle's corners)")
     _scan_defaults(args)
     job = Job(pattern=args.pattern, tool_radius=args.tool_radius, scallop=args.scallop, tolerance=args.tolerance,
               feed=args.feed, plunge_feed=args.plunge_feed, safe_z=args.safe_z, orient=args.orient,
-              weights=args.weights, corners=_corners(args.corners), max_step=args.max_step, spindle=args.spindle,
+              weights=args.weights, corners=args.corners, max_step=args.max_step, spindle=args.spindle,
               concave_steps=args.concave_steps, spacing=args.spacing, settle=args.settle, fit=args.fit,
               pencil=args.pencil, pencil_density=args.pencil_density, hop_lift=args.hop_lifted,
               rapid=args.rapid, pencil_left=args.pencil_left, blend=args.blend, tool_number=args.tool_number,

@@ -264,6 +264,9 @@ def _check(args) -> int:
 
     t0 = time.perf_counter()
     mesh = read_mesh(args.mesh, scale=args.scale, validate=False)
+    from conformill.planning.steps import check_ball_size
+
+    check_ball_size(args.tool_radius, mesh.V, ConformillError, "--tool-radius")  # before the program is read
     program = read_gcode(Path(args.program) if args.program != "-" else sys.stdin.read(), chord_tol=args.chord_tol)
     quiet = getattr(args, "quiet", False)
     with sample_bar(args.samples, "simulating", enabled=not quiet) as update:

@@ -77,6 +77,10 @@ def run(args) -> int:
     check_stock(args.stock, args.tool_radius, ConformillError, "--stock")
     check_writable(args.output, inputs=(args.mesh, args.program))
     mesh = read_mesh(args.mesh, scale=args.scale)
+    if args.tool_radius is not None:
+        from conformill.planning.steps import check_ball_size
+
+        check_ball_size(args.tool_radius, mesh.V, ConformillError, "--tool-radius")
     info: dict = {"mesh file": Path(args.mesh).name}
     if args.scale != 1.0:
         info["scale"] = args.scale

@@ -69,7 +69,7 @@ def rectangle_map(V: np.ndarray, loop: np.ndarray, corners):
     size : (float, float)
         ``(X, Y)``.
     """
-    pos = corner_positions(loop, corners)
+    pos = corner_positions(loop, corners, len(V))
     b = len(loop)
     start = pos[0]
     rl = np.roll(loop, -start)  # loop starting at corners[0]
@@ -91,13 +91,23 @@ def rectangle_map(V: np.ndarray, loop: np.ndarray, corners):
     return uv, (float(X), float(Y))
 
 
-def corner_positions(loop: np.ndarray, corners) -> np.ndarray:
+def corner_positions(loop: np.ndarray, corners, n_vertices: int | None = None) -> np.ndarray:
     """Positions of four corner vertex ids on the loop, checked.
+
+    Parameters
+    ----------
+    loop : (b,) int64
+        The boundary loop (vertex ids).
+    corners : sequence of 4 int
+    n_vertices : int, optional
+        Vertices of the mesh: an id outside ``0..n_vertices-1`` is named as not in the
+        mesh (without it, only a negative id is).
 
     Raises
     ------
     ParameterizationError
-        Not four distinct ids, an id not on the boundary, or not in boundary order.
+        Not four distinct ids, an id not in the mesh, an id not on the boundary, or not in
+        boundary order.
     """
     try:
         c = [int(x) for x in corners]
@@ -105,9 +115,13 @@ def corner_positions(loop: np.ndarray, corners) -> np.ndarray:
         raise ParameterizationError(f"corners must be four vertex ids, got {corners!r}") from None
     if len(c) != 4 or len(set(c)) != 4:
         raise ParameterizationError(f"corners must be four distinct vertex ids, got {tuple(c)}")
-    where = np.full(int(max(loop.max(), max(c))) + 1, -1, dtype=np.int64)
+    for x in c:
+        if x < 0 or (n_vertices is not None and x >= n_vertices):
+            ids = "ids are 0 or more" if n_vertices is None else f"ids 0..{int(n_vertices) - 1}"
+            raise ParameterizationError(f"corner vertex id {x} is not in the mesh ({ids})")
+    where = np.full(int(loop.max()) + 1, -1, dtype=np.int64)
     where[loop] = np.arange(len(loop))
-    pos = np.array([where[x] if x >= 0 else -1 for x in c], dtype=np.int64)
+    pos = np.array([where[x] if x < len(where) else -1 for x in c], dtype=np.int64)
     off = [x for x, p in zip(c, pos) if p < 0]
     if off:
         raise ParameterizationError(f"corner vertices {off} are not on the boundary loop")

@@ -151,6 +151,53 @@ def check_stock(stock, tool_radius: float | None, error: type[Exception] = JobVa
     return s
 
 
+#: A ball whose radius is more than this many times the part's largest extent is refused
+#: (:func:`check_ball_size`).
+BALL_OVER_PART = 100.0
+
+
+def check_ball_size(tool_radius: float, V: np.ndarray, error: type[Exception] = JobValueError,
+                    name: str = "tool radius") -> None:
+    """Refuse a ball far larger than the part: a radius more than :data:`BALL_OVER_PART`
+    times the largest side of the part's bounding box.
+
+    Such a radius is a mistake of units (a radius in micrometres, a part in metres), not a
+    tool for this part, and the work does not end or ends in nonsense: every face of the
+    part lies within the ball's reach of every point, so the drop-cutter's time grows with
+    the radius (``sample:patch``, 120 mm across: 20 s at r = 1e6 mm, 89 s at 1e7, not done
+    in 5 minutes at 1e9), and near 1e150 mm its squares overflow (the plan failed with
+    "not within the ball's reach", ``verify`` with an IndexError). The check behind
+    :func:`conformill.pipeline.plan` (a :class:`~conformill.errors.JobValueError`),
+    :func:`conformill.verify.simulate.verify` and ``view`` (a
+    :class:`~conformill.errors.ConformillError`): exit code 2 from each.
+
+    Parameters
+    ----------
+    tool_radius : float
+        Ball radius (mm), finite and positive (checked before).
+    V : (n, 3) float64
+        The part's vertices (mm).
+    error : type of Exception
+        What to raise.
+    name : str
+        How the message names the radius.
+
+    Raises
+    ------
+    error
+        The radius is more than ``BALL_OVER_PART`` times the part's largest extent.
+    """
+    V = np.asarray(V, dtype=np.float64)
+    if V.size == 0:
+        return
+    ext = V.max(axis=0) - V.min(axis=0)
+    r = float(tool_radius)
+    if r > BALL_OVER_PART * float(ext.max()):
+        raise error(f"{name} {r:g} mm is more than {BALL_OVER_PART:g} times the part's size ({ext[0]:.4g} x "
+                    f"{ext[1]:.4g} x {ext[2]:.4g} mm): no ball that large can finish it; check the units of the "
+                    f"radius and of the mesh (--scale)")
+
+
 def side_interval(h, r, kappa):
     """Exact chord between adjacent CC points leaving a cusp of height ``h``.
 

@@ -50,7 +50,7 @@ from scipy.spatial import cKDTree
 
 from conformill.errors import ConformillError, GCodeError
 from conformill.geometry.closest import closest_on_triangle
-from conformill.planning.steps import check_stock
+from conformill.planning.steps import check_ball_size, check_stock
 from conformill.verify.gcode import FEED, RAPID, Program
 from conformill.verify.samples import SurfaceSamples, sample_surface
 
@@ -1032,12 +1032,14 @@ def verify(mesh, program: Program, tool_radius: float, n_samples: int = 200_000,
     Raises
     ------
     ConformillError
-        Bad radius, sample count or mesh; a program with no feed moves.
+        Bad radius (not positive, or more than 100 times the part's size), sample count or
+        mesh; a program with no feed moves.
     """
     r0 = float(tool_radius)
     if not (math.isfinite(r0) and r0 > 0):
         raise ConformillError(f"tool radius must be > 0 mm, got {tool_radius!r}")
     stock = check_stock(stock, r0, ConformillError)
+    check_ball_size(r0, mesh.V, ConformillError)
     cut_program = program  # the ball of radius r0 as written: what the material is measured against
     program, r = program.for_stock(r0, stock)  # the ball of radius r0 + stock about the same centres
     if judge not in ("interior", "reachable"):

@@ -94,6 +94,24 @@ def test_replan_plans_again_until_the_judged_height_is_met(part, tmp_path, capsy
     assert r["holder"]["worst_line"] <= r["program"]["n_lines"]
 
 
+def test_verify_on_a_bowl_narrower_than_the_ball_judges_nothing(tmp_path, capsys):
+    # a 30 mm ball on a 20 mm bowl: no sample lies farther than r from the boundary. The
+    # check fails with "nothing judged" (exit 1, files kept), without testing the reach of
+    # samples it does not judge (that took 33 s at 60k samples on a 40 mm bowl, minutes at
+    # the default 400k)
+    m = synthetic.sphere_cap(R=25.0, radius_xy=10.0, spacing=1.0, concave=True)
+    bowl = tmp_path / "bowl.ply"
+    trimesh.Trimesh(m.V, m.F, process=False).export(bowl)
+    out, rep = tmp_path / "b.nc", tmp_path / "b.json"
+    rc = main(["plan", str(bowl), "--tool-radius", "30", "--scallop", "0.1", "--verify", "-o", str(out),
+               "--report", str(rep)])
+    v = json.loads(rep.read_text())["verify"]
+    assert rc == 1 and out.exists() and not v["pass"] and v["interior_samples"] == 0
+    assert v["failures"] == ["nothing judged: the part has no interior sample (one farther than the tool radius, "
+                             "30 mm, from its boundary)"]
+    assert "FAIL (nothing judged" in capsys.readouterr().out
+
+
 def test_replan_stops_after_n_plans_and_fails(part, tmp_path):
     # judged far below what a plan can reach in one round: each round at most halves the
     # scallop; after --replan 1 the check still fails (exit 1, files kept, both plans listed)

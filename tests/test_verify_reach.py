@@ -23,6 +23,20 @@ def test_trough_tighter_than_the_ball_is_unreachable_at_its_bottom():
     assert bad[bottom].all()
 
 
+def test_which_tests_only_those_samples():
+    # the answer on the samples tested is the full answer there; the others are False
+    # (a plane under a roof of points, as in the overhang test below: some of each)
+    m = plane(size=40.0, spacing=2.0)
+    S = sample_surface(m.V, m.F, 4000, seed=4)
+    g = np.linspace(-5, 5, 21)
+    V = np.vstack([m.V, np.column_stack([np.repeat(g, 21), np.tile(g, 21), np.full(441, 5.0)])])
+    full = unreachable_samples(S, V, 1.0, 0.01)
+    which = np.random.default_rng(0).random(len(S)) < 0.4
+    assert full[which].sum() > 20 and (~full[which]).sum() > 20
+    assert np.array_equal(unreachable_samples(S, V, 1.0, 0.01, which=which), full & which)
+    assert not unreachable_samples(S, V, 1.0, 0.01, which=np.zeros(len(S), dtype=bool)).any()
+
+
 def test_trough_wider_than_the_ball_is_reachable():
     m = cylinder_patch(R=8.0, length=30.0, half_angle=0.8, spacing=0.5, concave=True)
     S = sample_surface(m.V, m.F, 5000, seed=3)

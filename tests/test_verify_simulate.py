@@ -259,6 +259,30 @@ def test_first_pairs_keeps_each_pair_once():
     assert np.array_equal(np.flatnonzero(keep), np.sort(first))
 
 
+def test_a_ball_wider_than_a_bowl_is_judged_nothing_without_the_reach_test(monkeypatch):
+    # A 30 mm ball on a 20 mm bowl of radius 25: no sample is farther than r from the
+    # boundary. The ball centres then lie near the bowl's centre of curvature, nearly as far
+    # from every point as from the nearest, and the reach test's k-d tree visited them all
+    # (a 60 mm ball on a 40 mm bowl: 155 s at 200k samples) for samples no figure uses: it
+    # now tests the interior samples only, here none, and the verdict is the same.
+    from conformill.verify import simulate
+
+    bowl = sphere_cap(R=25.0, radius_xy=10.0, spacing=1.0, concave=True)
+    prog = raster_program(np.arange(-10.0, 10.01, 2.0), -11, 11, z=bowl.V[:, 2].max() + 0.5)
+    swept = []
+    real = simulate._shank_blocked
+    monkeypatch.setattr(simulate, "_shank_blocked", lambda X, C, *a: swept.append(len(C)) or real(X, C, *a))
+    res = verify(bowl, prog, 30.0, n_samples=20_000, scallop=0.1, gouge=0.01, judge="reachable")
+    s = res.summary
+    assert swept == []  # the reach test ran on no sample
+    assert s["interior_samples"] == 0 and s["all"]["samples"] == 20_000 and not s["pass"]
+    assert s["failures"] == ["nothing judged: the part has no interior sample (one farther than the tool radius, "
+                             "30 mm, from its boundary)"]
+    # with a smaller ball the same program is judged on its interior, which the reach test sees
+    small = verify(bowl, prog, 3.0, n_samples=20_000, scallop=0.1, gouge=0.01)
+    assert small.summary["interior_samples"] > 0 and swept == [small.summary["interior_samples"]]
+
+
 def test_a_ball_far_larger_than_the_part_is_refused(flat):
     # more than 100 times the part's size: a ConformillError naming it (an IndexError in
     # the rapid check at 1e300 before)

@@ -289,3 +289,33 @@ def test_the_program_ends_at_m2_or_m30():
         assert np.allclose(p.points, [[0, 0, 5], [0, 0, 0]]) and p.spindle_off_feeds == 0
         p = read_gcode(f"G21 G90\nG0 X0 Y0 Z5\n{end}\nG1 X7 Z0 F100\n")
         assert np.allclose(p.points, [[0, 0, 5]]) and p.spindle_off_feeds == 0
+
+
+# -- binary files -----------------------------------------------------------------------
+PROGRAM = b"G21 G90\nG0 X0 Y0 Z5\nG1 Z0 F100\nG1 X1\nM30\n"
+
+
+@pytest.mark.parametrize("data, at", [
+    (b"\x11\xc8_\xb0\x00\x1b\xdb\x96" * 100, 0),  # random-looking bytes with NULs
+    (PROGRAM + b"\x00\x00junk", len(PROGRAM)),  # text, then a NUL
+    (b"G21\n" + bytes(range(0x80, 0x100)) * 40, 4),  # mostly not UTF-8, no NUL
+    (b"G21\n" + b"\x01\x02\x03 G1" * 100, 4),  # mostly control bytes
+])
+def test_a_binary_file_is_named_as_such(tmp_path, data, at):
+    f = tmp_path / "prog.nc"
+    f.write_bytes(data)
+    with pytest.raises(GCodeError, match=rf"^{re.escape(str(f))} is not a text G-code file \(binary data at byte "
+                                         rf"{at}\)$"):
+        read_gcode(f)
+
+
+def test_utf16_text_and_a_latin1_comment(tmp_path):
+    f = tmp_path / "u16.nc"
+    f.write_bytes(PROGRAM.decode().encode("utf-16"))
+    with pytest.raises(GCodeError, match="is UTF-16 text.*save it as ASCII or UTF-8"):
+        read_gcode(f)
+    # a few bytes that are not UTF-8 in a comment (Latin-1) are text: read as before
+    g = tmp_path / "latin1.nc"
+    g.write_bytes(b"(Temp\xe9rature: 20\xb0C)\n" + PROGRAM)
+    p = read_gcode(g)
+    assert np.allclose(p.points[-1], [1, 0, 0]) and p.line.tolist() == [3, 4, 5]

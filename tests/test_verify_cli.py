@@ -156,6 +156,35 @@ def test_a_ball_far_larger_than_the_part_exit_2(files, tmp_path, capsys):
     assert not rep.exists() and not html.exists()
 
 
+def test_a_binary_program_exit_2(files, tmp_path, capsys, monkeypatch):
+    # it was read with its bytes replaced: "line 1: cannot read '\x11\ufffd_...'"
+    import io
+
+    mesh, _ = files
+    data = bytes(range(256)) * 20
+    prog, rep = tmp_path / "bin.nc", tmp_path / "r.json"
+    prog.write_bytes(data)
+    assert main(["verify", str(mesh), str(prog), "-r", "3", "--report", str(rep)]) == 2
+    err = capsys.readouterr().err
+    assert err == f"conformill verify: error: {prog} is not a text G-code file (binary data at byte 0)\n"
+    monkeypatch.setattr("sys.stdin", io.TextIOWrapper(io.BytesIO(data)))
+    assert main(["verify", str(mesh), "-", "-r", "3", "--report", str(rep)]) == 2
+    err = capsys.readouterr().err
+    assert err == "conformill verify: error: standard input is not a text G-code file (binary data at byte 0)\n"
+    assert main(["view", str(mesh), str(prog), "-o", str(tmp_path / "v.html")]) == 2
+    assert "is not a text G-code file" in capsys.readouterr().err
+    assert not rep.exists() and not (tmp_path / "v.html").exists()
+
+
+def test_a_program_on_standard_input(files, capsys, monkeypatch):
+    import io
+
+    mesh, program = files
+    monkeypatch.setattr("sys.stdin", io.TextIOWrapper(io.BytesIO(program("good.nc").read_bytes())))
+    assert main(["verify", str(mesh), "-", "-r", "3", "--scallop", "0.05", "--samples", "5000"]) == 0
+    assert "PASS" in capsys.readouterr().out
+
+
 def test_path_control_is_reported_not_simulated(files, tmp_path, capsys):
     mesh, program = files
     nc = program("good.nc")

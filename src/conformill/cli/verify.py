@@ -267,7 +267,13 @@ def _check(args) -> int:
     from conformill.planning.steps import check_ball_size
 
     check_ball_size(args.tool_radius, mesh.V, ConformillError, "--tool-radius")  # before the program is read
-    program = read_gcode(Path(args.program) if args.program != "-" else sys.stdin.read(), chord_tol=args.chord_tol)
+    if args.program == "-":
+        from conformill.verify.gcode import program_text
+
+        source = program_text(sys.stdin.buffer.read(), "standard input")  # refused if binary, as a file is
+    else:
+        source = Path(args.program)
+    program = read_gcode(source, chord_tol=args.chord_tol)
     quiet = getattr(args, "quiet", False)
     with sample_bar(args.samples, "simulating", enabled=not quiet) as update:
         res = verify(mesh, program, args.tool_radius, n_samples=args.samples, seed=args.seed,

@@ -50,7 +50,7 @@ import numpy as np
 
 from conformill.errors import GCodeError
 
-__all__ = ["Program", "read_gcode", "unbounded_mode", "RAPID", "FEED"]
+__all__ = ["Program", "read_gcode", "program_text", "unbounded_mode", "RAPID", "FEED"]
 
 RAPID = 0
 FEED = 1
@@ -225,6 +225,56 @@ def _arc_points(p0, p1, centre, clockwise, turns, chord_tol, radius_tol, lineno,
     return pts
 
 
+#: Bytes that no G-code text holds: the C0 controls but tab, line feed, vertical tab, form
+#: feed, carriage return and Ctrl-Z (an old end-of-file mark), and DEL.
+_CONTROL = re.compile(rb"[\x00-\x08\x0e-\x19\x1b-\x1f\x7f]")
+#: Share of the bytes (of the first 64 kB) that are controls or not UTF-8 above which a file
+#: is binary: random bytes give about 0.6, a program with accented comments in Latin-1 a
+#: few per mille.
+_BINARY_SHARE = 0.1
+
+
+def program_text(data: bytes, name: str) -> str:
+    """The text of a G-code program read as bytes, or :class:`GCodeError` when it is binary.
+
+    Binary: a NUL byte anywhere (UTF-16 text included, named as such), or more than
+    :data:`_BINARY_SHARE` of the first 64 kB in control bytes and bytes that are not UTF-8.
+    Otherwise bytes that are not UTF-8 (a comment in Latin-1) become U+FFFD and the reader
+    judges the text line by line (only a comment may hold them).
+
+    Parameters
+    ----------
+    data : bytes
+    name : str
+        How the message names the program (its file name).
+
+    Returns
+    -------
+    str
+
+    Raises
+    ------
+    GCodeError
+        ``"NAME is not a text G-code file (binary data at byte N)"``, N the first byte
+        that is no text (counted from 0).
+    """
+    if data[:2] in (b"\xff\xfe", b"\xfe\xff"):
+        raise GCodeError(f"{name} is UTF-16 text, not a G-code file the machine reads: save it as ASCII or UTF-8")
+    head = data[:65536]
+    bad = len(_CONTROL.findall(head)) + head.decode("utf-8", errors="replace").count("\ufffd")
+    if b"\0" in data or bad > _BINARY_SHARE * max(len(head), 1):
+        nul = data.find(b"\0")
+        ctrl = _CONTROL.search(head)
+        try:
+            head.decode("utf-8")
+            first = len(data)
+        except UnicodeDecodeError as exc:
+            first = exc.start
+        at = min(first, ctrl.start() if ctrl else len(data), nul if nul >= 0 else len(data))
+        raise GCodeError(f"{name} is not a text G-code file (binary data at byte {at})")
+    return data.decode("utf-8", errors="replace")
+
+
 def read_gcode(source, chord_tol: float = 0.001, start=None, block_delete: bool = True) -> Program:
     """Read a 3-axis RS274 program into tool-tip positions (see the module docstring).
 
@@ -248,8 +298,9 @@ def read_gcode(source, chord_tol: float = 0.001, start=None, block_delete: bool 
     Raises
     ------
     GCodeError
-        Unreadable file, unsupported or malformed block (the message gives the line
-        number and text), or a program that never gives some axis a value.
+        Unreadable or binary file (:func:`program_text`), unsupported or malformed block
+        (the message gives the line number and text), or a program that never gives some
+        axis a value.
     """
     if not chord_tol > 0:
         raise GCodeError(f"chord tolerance must be > 0 mm, got {chord_tol!r}")
@@ -258,9 +309,10 @@ def read_gcode(source, chord_tol: float = 0.001, start=None, block_delete: bool 
                                           and Path(source).is_file()):
         name = str(source)
         try:
-            text = Path(source).read_text(encoding="utf-8", errors="replace")
+            data = Path(source).read_bytes()
         except OSError as exc:
             raise GCodeError(f"cannot read G-code file {source}: {exc.strerror}") from None
+        text = program_text(data, name)
     elif isinstance(source, str):
         text = source
     else:

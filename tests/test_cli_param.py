@@ -88,7 +88,11 @@ def test_errors_leave_no_output(mesh_file, tmp_path, capsys):
     assert rc == 2 and "--corners needs --boundary rectangle" in capsys.readouterr().err
     # usage errors
     assert main(["param", str(path), "--weights", "tutte", "-o", str(out)]) == 2
+    capsys.readouterr()
     assert main(["param", str(path), "--corners", "1,2", "-o", str(out)]) == 2
+    err = capsys.readouterr().err  # one line, without argparse's usage lines
+    assert err.splitlines() == ["conformill param: error: argument --corners: corners must be four vertex ids "
+                                "i,j,k,l, got '1,2' (see conformill param --help)"]
     assert main(["param", str(path)]) == 2
     # same file twice
     rc = main(["param", str(path), "-o", str(out), "--report", str(out)])

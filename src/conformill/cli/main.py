@@ -40,7 +40,9 @@ class _Parser(argparse.ArgumentParser):
         return super().parse_known_args(args, namespace)
 
     def error(self, message):
-        super().error(message + _dash_hint(message, getattr(self, "_words", [])))
+        # argparse prints its usage lines first; one line says it, and where the options are
+        self.exit(2, f"{self.prog}: error: {message}{_dash_hint(message, getattr(self, '_words', []))} "
+                     f"(see {self.prog} --help)\n")
 
 
 def _dash_hint(message: str, words: list) -> str:

@@ -500,7 +500,9 @@ def _summary(rep: dict, out: str) -> None:
         q = v["reachable"]
         lines.append(f"  verify            {'on the part offset by the stock: ' if v.get('stock') else ''}interior: scallop p50 {s['p50']:.4f} / p99.9 {s['p999']:.4f} / max "
                      f"{s['max']:.4f} mm, uncut {100 * v['uncut_fraction']:.3f}%, gouge max {v['gouge_max']:.4f} mm")
-        lines.append(f"                    reachable ({100 * (1 - q['unreachable_fraction']):.2f}% of it): scallop "
+        share = (f"{100 * (1 - q['unreachable_fraction']):.2f}% of it" if v.get("interior_samples", 1)
+                 else "no interior sample")
+        lines.append(f"                    reachable ({share}): scallop "
                      f"p99.9 {q['scallop']['p999']:.4f} mm = {q['scallop_over_h']['p999']:.3f} H"
                      + ("" if v["judged_h"] == rep["job"]["scallop"] else f" (H = {v['judged_h']:g})") + ", uncut "
                      f"{100 * q['uncut_fraction']:.3f}%; rapid clearance {v['rapid_min_clearance']:.2f} mm: "

@@ -507,6 +507,29 @@ def test_a_failing_stage_stops_the_background_search(monkeypatch, left):
 
 
 
+def test_fold_search_skips_the_contact_motion_of_smooth_concave_ground():
+    # a bowl of radius 5 r (no fold: D is smooth there): the contact moves 1.25 grid
+    # spacings along an edge, beyond the wedge jump of a 0.15 h shadow (0.22 mm against the
+    # 0.18 mm spacing), so that jump alone searches thousands of edges and finds no shadow;
+    # the floor of 1.6 spacings searches none. A V-groove's fold (contacts 1.1 mm apart) is
+    # still found on every grid row
+    from conformill.folds import fold_points, wedge_jump
+
+    h, s = 0.01, 1 / np.sqrt(30.0)
+    bowl = syn.sphere_cap(R=5 * R, radius_xy=8.0, spacing=0.2, concave=True)
+    cut = BallCutter(bowl.V, bowl.F, R)
+    alone = fold_points(cut, s, wedge_jump(R, 0.15 * h))
+    assert alone.stats["edges"] > 1000 and not (alone.shadow > 0.15 * h).any()
+    fp, deep = pencil.fold_centres(cut, s, h)
+    assert fp.stats["jump_mm"] == pytest.approx(1.6 * s) and fp.stats["edges"] == 0 and not deep.any()
+    groove = syn.v_groove(a_deg=8.0, half=10.0, step=0.5)
+    cut = BallCutter(groove.V, groove.F, R)
+    fp, deep = pencil.fold_centres(cut, s, h)
+    rows = np.unique(np.round(fp.centres[deep, 1] / s))
+    inner = np.abs(rows * s) < 10.0 - R
+    assert inner.sum() >= int(2 * (10.0 - R) / s) - 1
+
+
 def test_plan_cuts_the_fold_pencil_where_the_pattern_left_material():
     # Job.pencil_left: the fold points cut are exactly those with a shadow point farther
     # than r + F h from every centre move of the pattern (brute force here); the pattern's

@@ -29,7 +29,8 @@ The search visits the folds, not the surface:
 
 A V-shaped crease of two planes whose contacts lie ``J`` apart leaves ``r (1 / cos(a) -
 1)`` at its bottom, ``sin(a) = J / 2r``: ``jump`` is set from the shallowest shadow that
-matters (:func:`wedge_jump`). A fold narrower than ``jump`` between contacts but deeper
+matters (:func:`wedge_jump`), and the pencil keeps it at least 1.6 ``s`` (the contact's
+motion on smooth concave ground, :data:`conformill.pencil._JUMP_SPACINGS`). A fold narrower than ``jump`` between contacts but deeper
 (a pit narrower than about 0.2 mm at r = 4, h = 0.01) is still found when its grid
 edge's ends touch beyond it, which is the usual case (the ends are ``s`` apart).
 

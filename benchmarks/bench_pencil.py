@@ -62,9 +62,10 @@ def main(argv=None) -> int:
     default = pencil._GRIDS
     times = {s: [] for s in settings}
     ends = {}
-    from conformill.folds import fold_points, wedge_jump
+    from conformill.folds import fold_points
 
-    spacing, jump = 1.0 / np.sqrt(args.density), wedge_jump(args.radius, 0.15 * h)
+    spacing = 1.0 / np.sqrt(args.density)
+    jump = pencil.fold_jump(args.radius, h, spacing)  # the planner's (pencil.fold_centres)
     folds_t, fp = [], None
     try:
         for s in settings:  # compile / warm

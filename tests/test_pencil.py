@@ -528,6 +528,17 @@ def test_fold_search_skips_the_contact_motion_of_smooth_concave_ground():
     rows = np.unique(np.round(fp.centres[deep, 1] / s))
     inner = np.abs(rows * s) < 10.0 - R
     assert inner.sum() >= int(2 * (10.0 - R) / s) - 1
+    # on coarser grids the floor stays within half a spacing of the wedge jump: a shallow
+    # V-groove (3 deg, a 0.55 h crease) keeps every deep fold point the wedge jump finds
+    # (1.6 spacings alone lost 4 of 35 at 4 per mm^2)
+    groove = syn.v_groove(a_deg=3.0, half=10.0, step=0.5)
+    cut = BallCutter(groove.V, groove.F, R)
+    for density in (4.0, 10.0, 30.0):
+        s = 1 / np.sqrt(density)
+        alone = fold_points(cut, s, wedge_jump(R, 0.15 * h))
+        fp, deep = pencil.fold_centres(cut, s, h)
+        assert deep.sum() == (alone.shadow > 0.15 * h).sum() > 30
+        assert fp.stats["jump_mm"] == pytest.approx(min(1.6 * s, wedge_jump(R, 0.15 * h) + 0.5 * s))
 
 
 def test_plan_cuts_the_fold_pencil_where_the_pattern_left_material():

@@ -29,10 +29,12 @@ The search visits the folds, not the surface:
 
 A V-shaped crease of two planes whose contacts lie ``J`` apart leaves ``r (1 / cos(a) -
 1)`` at its bottom, ``sin(a) = J / 2r``: ``jump`` is set from the shallowest shadow that
-matters (:func:`wedge_jump`), and the pencil keeps it at least 1.6 ``s`` (the contact's
-motion on smooth concave ground, :data:`conformill.pencil._JUMP_SPACINGS`). A fold narrower than ``jump`` between contacts but deeper
-(a pit narrower than about 0.2 mm at r = 4, h = 0.01) is still found when its grid
-edge's ends touch beyond it, which is the usual case (the ends are ``s`` apart).
+matters (:func:`wedge_jump`); the pencil raises it by up to half a spacing, to 1.6 ``s``
+at most, the contact's own motion on smooth concave ground
+(:func:`conformill.pencil.fold_jump`). A fold narrower than that between contacts but
+deeper (a pit narrower than about 0.3 mm at r = 4, h = 0.01, 30 points per mm^2) is still
+found when its grid edge's ends touch beyond it, which is the usual case: their contacts
+lie about the pit's width plus ``s`` apart.
 
 On igea (155k faces, r = 4 mm, 0.18 mm grid) the search takes about 1.3 s on two cores
 (2.4 s of CPU: grid 0.5 s, crossings 0.6 s, shadows 0.2 s of wall), 0.31 of the CPU of

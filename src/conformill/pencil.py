@@ -125,17 +125,23 @@ SEARCHES = PENCIL_SEARCHES
 #: session 30's ``benchmarks/bench_pencil_filter.py`` read the same three).
 _SHADOW_AT = (0.25, 0.5, 0.75)
 #: Fold grid edges whose two contacts lie at most this many grid spacings apart are not
-#: searched, however small the wedge jump of the shallowest shadow that matters: on smooth
-#: ground the contact moves ``s rho / (rho - r)`` along an edge of length ``s`` where the
-#: part is concave with radius ``rho``, within 1.6 s where ``rho >= 2.7 r``. At r = 4, h =
-#: 0.01 and 30 points per mm^2 the wedge jump (0.22 mm) lies just above s (0.18 mm); on igea
-#: the edges with contacts 0.22-0.29 mm apart were 52k of the 167k searched and gave 2884
-#: of the 58838 fold points kept, with shadows of 0.25 h at the median (0.67 h at the 90th
-#: percentile). Without them, of the eleven benchmark meshes' 33 ``--scan`` programs the 25
-#: within 1.05 h still are, their verified p99.9 moved by -0.0012 to +0.0020 h (the
-#: eight beyond it by -0.003 to +0.003 h), for up to 1.2 CPU-s less per plan (igea 0.3-1.2;
-#: session 44, docs/issue5.md).
+#: searched (:func:`fold_jump`): on smooth ground the contact moves ``s rho / (rho - r)``
+#: along an edge of length ``s`` where the part is concave with radius ``rho``, within 1.6 s
+#: where ``rho >= 2.7 r``. At r = 4, h = 0.01 and 30 points per mm^2 the wedge jump of a
+#: 0.15 h shadow (0.22 mm) lies just above s (0.18 mm); on igea the edges with contacts
+#: 0.22-0.29 mm apart were 52k of the 167k searched and gave 2884 of the 58838 fold points
+#: kept, with shadows of 0.25 h at the median (0.67 h at the 90th percentile). Without them,
+#: of the eleven benchmark meshes' 33 ``--scan`` programs the 25 within 1.05 h still are,
+#: their verified p99.9 moved by -0.0012 to +0.0020 h (the eight beyond it by -0.003 to
+#: +0.003 h), for up to 1.2 CPU-s less per plan (igea 0.3-1.2; session 44, docs/issue5.md).
 _JUMP_SPACINGS = 1.6
+#: ... but never more than this many spacings above the wedge jump: an edge across a fold
+#: whose own contacts jump by ``J`` has its ends' contacts about ``J + m s`` apart, ``m``
+#: the contacts' motion per unit of the centre's on the two sides, at least 0.5 where they
+#: are convex with a radius of at least r (``rho / (rho + r)``). The floor is then 1.6 s at
+#: above about 25 points per mm^2 (r = 4, h = 0.01) and below it on coarser grids, where 1.6 s
+#: would pass over real folds (a 3 deg V-groove at 4 per mm^2: 31 of its 35 deep points).
+_JUMP_ABOVE_WEDGE = 0.5
 #: Most samples the stage draws (about 0.2 kB each while it runs): a larger part gets a
 #: lower density, with a warning.
 _MAX_SAMPLES = 4_000_000
@@ -882,14 +888,23 @@ def where_left(found: PencilFound, passes, radius: float, depth: float) -> np.nd
     return keep
 
 
+def fold_jump(r: float, h: float, spacing: float, low: float = 0.15) -> float:
+    """Least distance (mm) between a fold grid edge's two contacts for the edge to be searched:
+    the wedge jump of a ``low * h`` shadow (:func:`conformill.folds.wedge_jump`), at least
+    ``min(`` :data:`_JUMP_SPACINGS` ``s, wedge +`` :data:`_JUMP_ABOVE_WEDGE` ``s)``."""
+    from conformill.folds import wedge_jump
+
+    w = wedge_jump(r, low * h)
+    return max(w, min(_JUMP_SPACINGS * spacing, w + _JUMP_ABOVE_WEDGE * spacing))
+
+
 def fold_centres(cutter, spacing: float, h: float, low: float = 0.15):
     """The fold search's first step: fold points on an XY grid of ``spacing`` (mm), on the
-    edges whose contacts lie farther apart than the wedge jump of a ``low * h`` shadow and
-    :data:`_JUMP_SPACINGS` spacings. Returns the :class:`conformill.folds.FoldPoints` and
+    edges whose contacts lie farther apart than :func:`fold_jump`. Returns the :class:`conformill.folds.FoldPoints` and
     which of them (``(k,)`` bool) have a shadow deeper than ``low * h``."""
-    from conformill.folds import fold_points, wedge_jump
+    from conformill.folds import fold_points
 
-    fp = fold_points(cutter, spacing, max(wedge_jump(cutter.radius, low * h), _JUMP_SPACINGS * spacing))
+    fp = fold_points(cutter, spacing, fold_jump(cutter.radius, h, spacing, low))
     return fp, fp.shadow > low * h
 
 

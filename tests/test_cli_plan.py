@@ -225,6 +225,15 @@ def test_plan_programs_run_in_linuxcnc(part, tmp_path, pattern):
     # (it was planned for minutes, or failed with "not within the ball's reach")
     (["--tool-radius", "1e300", "--scallop", "0.01"], 2, "tool radius 1e+300 mm is more than 100 times"),
     (["--tool-radius", "1e9", "--scallop", "0.01"], 2, "--scale"),
+    (["--tool-radius", "4", "--scallop", "0.1", "--stock", "1e300"], 2, "plus the stock 1e+300 mm is more than 100"),
+    # below the program's 4 decimals (1e-300 ended in a ZeroDivisionError, or a linspace
+    # beyond memory, with a traceback)
+    (["--tool-radius", "1e-300", "--scallop", "1e-301"], 2, "tool radius 1e-300 mm is below 0.0001 mm"),
+    (["--tool-radius", "4", "--scallop", "0.00005"], 2, "scallop height 5e-05 mm is below 0.0001 mm"),
+    (["--tool-radius", "4", "--scallop", "0.1", "--tolerance", "1e-300"], 2, "chord tolerance 1e-300 mm is below"),
+    (["--tool-radius", "4", "--scallop", "0.1", "--max-step", "1e-300"], 2, "max-step 1e-300 mm is below"),
+    # a safe height the writer's 1e-4 mm ticks cannot count (it was refused as "above the clearance")
+    (["--tool-radius", "4", "--scallop", "0.1", "--safe-z", "1e15"], 2, "safe-z must be a finite height within"),
     # well formed, but not met on this part
     (["--tool-radius", "4", "--scallop", "0.1", "--safe-z", "1"], 3, "safe-z"),
     (["--tool-radius", "4", "--scallop", "0.1", "--blend", "4.5"], 3, "larger than the tool radius"),
@@ -264,6 +273,16 @@ def test_a_value_starting_with_a_dash_gets_the_hint_on_any_option(part, tmp_path
     assert "write -r=-1e-3)" in capsys.readouterr().err
     assert main(["plan", str(part), "--tool-radius", "4", "--scallop"]) == 2  # no value at all: no hint
     assert "expected one argument (see conformill plan --help)\n" in capsys.readouterr().err
+    # a value missing before the next option: no hint to write it as the value
+    assert main(["plan", str(part), "--tool-radius", "4", "--feed", "--scallop", "0.3", "-o", str(tmp_path / "f.nc")]) == 2
+    assert capsys.readouterr().err == ("conformill plan: error: argument --feed: expected one argument "
+                                       "(see conformill plan --help)\n")
+    # an unknown option is said by the command's own parser, on one line
+    for cmd, rest in (("plan", ["--tool-radius", "4", "--scallop", "0.3", "-o", str(tmp_path / "b.nc")]),
+                      ("verify", ["p.nc", "-r", "4"]), ("param", ["-o", str(tmp_path / "b.obj")])):
+        assert main([cmd, str(part), *rest, "--bogus"]) == 2
+        assert capsys.readouterr().err == (f"conformill {cmd}: error: unrecognized arguments: --bogus "
+                                           f"(see conformill {cmd} --help)\n")
     assert not (tmp_path / "s.nc").exists()
 
 
@@ -413,9 +432,12 @@ def test_job_blend_is_checked():
     assert Job(blend="off").blend_tolerance is None and Job(blend=0).blend_tolerance == 0.0
     assert str(Job(blend=-0.0).blend_tolerance) == "0.0"
     # a default below what can be written is exact path, not a refusal of an option never given
+    # (and such a tolerance is refused anyway, below the program's 4 decimals)
     tiny = Job(scallop=0.1, tolerance=2e-6)
-    check_job(tiny)
     assert tiny.blend_tolerance == 0.0
+    with pytest.raises(PlanningError, match="chord tolerance 2e-06 mm is below 0.0001 mm") as bad:
+        check_job(tiny)
+    assert bad.value.exit_code == 2
     check_job(Job(tool_radius=4.0, blend=4.0))
     for bad in ("on", "OFF", True, -1.0, float("inf"), float("nan"), 1e-9, 4.01, 1e300):
         with pytest.raises(PlanningError, match="blend"):

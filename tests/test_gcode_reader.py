@@ -63,7 +63,7 @@ def _radii(P, c):
 
 @pytest.mark.parametrize("tol", [0.1, 0.01, 0.001])
 def test_full_circle_ccw_and_chord_tolerance(tol):
-    p = read_gcode(f"G0 X10 Y0 Z0\nG3 X10 Y0 I-10 J0 F100\n", chord_tol=tol)
+    p = read_gcode("G0 X10 Y0 Z0\nG3 X10 Y0 I-10 J0 F100\n", chord_tol=tol)
     arc = p.points[p.line == 2]
     assert np.allclose(_radii(arc, (0, 0)), 10)
     assert np.allclose(arc[-1], [10, 0, 0])
@@ -319,3 +319,7 @@ def test_utf16_text_and_a_latin1_comment(tmp_path):
     g.write_bytes(b"(Temp\xe9rature: 20\xb0C)\n" + PROGRAM)
     p = read_gcode(g)
     assert np.allclose(p.points[-1], [1, 0, 0]) and p.line.tolist() == [3, 4, 5]
+    # a UTF-8 byte order mark (Windows editors) is not a block: it was "line 1: cannot read"
+    b = tmp_path / "bom.nc"
+    b.write_bytes(b"\xef\xbb\xbf" + PROGRAM)
+    assert np.array_equal(read_gcode(b).points, read_gcode(PROGRAM.decode()).points)

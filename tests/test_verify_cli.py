@@ -153,6 +153,20 @@ def test_a_ball_far_larger_than_the_part_exit_2(files, tmp_path, capsys):
         assert main(["view", str(mesh), str(nc), "--tool-radius", radius, "-o", str(html)]) == 2
         err = capsys.readouterr().err
         assert err.startswith(f"conformill view: error: --tool-radius {float(radius):g} mm is more than 100 times")
+    # the ball that touches the part is r + stock: a stock of 1e300 is the same mistake
+    # (it failed "nothing judged", or "heat has no finite value" in view); a radius below
+    # the programs' 4 decimals is one too (1e-100 ended in an IndexError)
+    for cmd, words in ((["verify", str(mesh), str(nc), "-r", "4", "--stock", "1e300", "--report", str(rep)],
+                        "--tool-radius 4 mm plus the stock 1e+300 mm is more than 100 times"),
+                       (["view", str(mesh), str(nc), "--tool-radius", "4", "--stock", "1e300", "-o", str(html)],
+                        "--tool-radius 4 mm plus the stock 1e+300 mm is more than 100 times"),
+                       (["verify", str(mesh), str(nc), "-r", "1e-100", "--report", str(rep)],
+                        "--tool-radius 1e-100 mm is below 0.0001 mm"),
+                       (["view", str(mesh), str(nc), "--tool-radius", "1e-100", "-o", str(html)],
+                        "--tool-radius 1e-100 mm is below 0.0001 mm")):
+        assert main(cmd) == 2
+        err = capsys.readouterr().err
+        assert err.startswith(f"conformill {cmd[0]}: error: {words}") and err.count("\n") == 1, err
     assert not rep.exists() and not html.exists()
 
 

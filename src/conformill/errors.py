@@ -9,10 +9,12 @@ Which job checks give which code:
 
 - 2 (:class:`JobValueError`): a value that is not a number, not finite, out of its own
   range (a radius, scallop, tolerance, feed or density <= 0, a settle or lift below 0, a
-  stock at or below minus the tool radius, i.e. a ball of no size), an unknown word, a
-  feed written ``F0``, a spindle below 1 rpm, options that need another (``pencil-left``
-  without the fold pencil), a tool radius more than 100 times the part's size (a mistake of
-  units). The same mistake gets 2 from every command.
+  stock at or below minus the tool radius, i.e. a ball of no size, a radius, scallop,
+  chord tolerance or max-step below the program's 1e-4 mm resolution, a safe height beyond
+  1e6 mm), an unknown word, a feed written ``F0``, a spindle below 1 rpm, options that need
+  another (``pencil-left`` without the fold pencil), a tool radius (plus a stock) more than
+  100 times the part's size (a mistake of units). The same mistake gets 2 from every
+  command.
 - 3 (:class:`PlanningError`): well-formed values that cannot be met together or on this
   part: a scallop at or above the tool radius, a blend larger than the tool radius, a
   safe height below the part, a program too large for the memory, a parameterization with

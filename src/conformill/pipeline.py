@@ -20,7 +20,7 @@ from conformill.geometry.surface import DomainSurface
 from conformill.output.gcode import coolant_on, path_control, tool_number
 from conformill.patterns.family import Planner
 from conformill.passes import PassBuilder, threads_can_overlap
-from conformill.planning.steps import check_ball_size, check_params, side_interval
+from conformill.planning.steps import RESOLUTION, check_ball_size, check_params, side_interval
 from conformill.types import PENCIL_SEARCHES, Mesh, PathParams, PlanResult, ToolPath
 
 log = logging.getLogger(__name__)
@@ -229,6 +229,11 @@ class _Timer:
 _LEAST_FEED = 0.001
 
 
+#: Largest safe height (mm) taken: the writer counts coordinates in 1e-4 mm ticks (int64),
+#: and a safe height of 1e15 mm overflowed them into a wrong "above the clearance" refusal.
+_MOST_SAFE_Z = 1e6
+
+
 def check_job(job: Job) -> PathParams:
     """Refuse a job before any work; return its checked cutting parameters
     (:func:`conformill.planning.steps.check_params`).
@@ -250,6 +255,9 @@ def check_job(job: Job) -> PathParams:
         v = getattr(job, name)
         if not np.isfinite(v) or v <= 0:
             raise JobValueError(f"{name.replace('_', '-')} must be a positive number, got {v}")
+    if job.max_step < RESOLUTION:
+        raise JobValueError(f"max-step {job.max_step:g} mm is below {RESOLUTION:g} mm, the resolution the program "
+                            f"is written to (4 decimals)")
     if job.plunge_feed is not None and (not np.isfinite(job.plunge_feed) or job.plunge_feed <= 0):
         raise JobValueError(f"plunge-feed must be a positive number, got {job.plunge_feed}")
     for name, v in (("feed", job.feed), ("plunge-feed", job.plunge_rate)):
@@ -257,8 +265,8 @@ def check_job(job: Job) -> PathParams:
             raise JobValueError(f"{name} {v:g} mm/min would be written F0; it must be at least {_LEAST_FEED:g}")
     if job.spindle is not None and not (np.isfinite(job.spindle) and job.spindle >= 1.0):
         raise JobValueError(f"spindle must be a speed of at least 1 rpm, got {job.spindle}")
-    if job.safe_z is not None and not np.isfinite(job.safe_z):
-        raise JobValueError(f"safe-z must be a finite height (mm), got {job.safe_z}")
+    if job.safe_z is not None and not (np.isfinite(job.safe_z) and abs(job.safe_z) <= _MOST_SAFE_Z):
+        raise JobValueError(f"safe-z must be a finite height within +-{_MOST_SAFE_Z:g} mm, got {job.safe_z}")
     if not (np.isfinite(job.settle) and job.settle >= 0):
         raise JobValueError(f"settle must be a non-negative number, got {job.settle}")
     if job.orient not in ("none", "auto"):
@@ -475,7 +483,7 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
     from conformill.patterns.zigzag import plan_zigzag
 
     params = check_job(job)
-    check_ball_size(params.tool_radius, mesh.V)
+    check_ball_size(params.tool_radius, mesh.V, stock=params.stock)
     timer = _Timer()
     r, h, e, stock = params.tool_radius, params.scallop, params.tolerance, params.stock
     # the cutter places the centres of a ball of radius r + stock on the part: the ball of

@@ -41,19 +41,20 @@ class _Parser(argparse.ArgumentParser):
 
     def error(self, message):
         # argparse prints its usage lines first; one line says it, and where the options are
-        self.exit(2, f"{self.prog}: error: {message}{_dash_hint(message, getattr(self, '_words', []))} "
+        self.exit(2, f"{self.prog}: error: {message}{_dash_hint(message, getattr(self, '_words', []), self._option_string_actions)} "
                      f"(see {self.prog} --help)\n")
 
 
-def _dash_hint(message: str, words: list) -> str:
+def _dash_hint(message: str, words: list, options=()) -> str:
     """For "argument --opt: expected one argument" where the word after the option starts
-    with '-': how to give it as the value (else "")."""
+    with '-' and is not one of the parser's ``options`` (then the value is just missing):
+    how to give it as the value (else "")."""
     m = re.fullmatch(r"argument (\S+): expected one argument", message)
     if not m:
         return ""
     names = m.group(1).split("/")
     for opt, nxt in zip(words, words[1:]):
-        if opt in names and nxt.startswith("-") and len(nxt) > 1:
+        if opt in names and nxt.startswith("-") and len(nxt) > 1 and nxt.split("=")[0] not in options:
             return f" ({nxt!r} starts with '-' and is read as an option: write {opt}={nxt})"
     return ""
 
@@ -69,7 +70,7 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
         mod = importlib.import_module(modname)
         mod.add_arguments(p)
-        p.set_defaults(_module=mod)
+        p.set_defaults(_module=mod, _parser=p)
     return parser
 
 
@@ -77,7 +78,9 @@ def main(argv: list[str] | None = None) -> int:
     """Run the command line; returns the exit code (never calls ``sys.exit``)."""
     parser = build_parser()
     try:
-        args = parser.parse_args(argv)
+        args, extra = parser.parse_known_args(argv)
+        if extra:  # said by the command's own parser, which names its --help
+            args._parser.error(f"unrecognized arguments: {' '.join(extra)}")
     except SystemExit as exc:  # argparse usage error or --help/--version
         return int(exc.code or 0)
     logging.basicConfig(

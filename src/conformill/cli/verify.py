@@ -266,7 +266,7 @@ def _check(args) -> int:
     mesh = read_mesh(args.mesh, scale=args.scale, validate=False)
     from conformill.planning.steps import check_ball_size
 
-    check_ball_size(args.tool_radius, mesh.V, ConformillError, "--tool-radius")  # before the program is read
+    check_ball_size(args.tool_radius, mesh.V, ConformillError, "--tool-radius", stock=args.stock)  # before reading
     if args.program == "-":
         from conformill.verify.gcode import program_text
 

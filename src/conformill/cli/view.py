@@ -80,7 +80,7 @@ def run(args) -> int:
     if args.tool_radius is not None:
         from conformill.planning.steps import check_ball_size
 
-        check_ball_size(args.tool_radius, mesh.V, ConformillError, "--tool-radius")
+        check_ball_size(args.tool_radius, mesh.V, ConformillError, "--tool-radius", stock=args.stock)
     info: dict = {"mesh file": Path(args.mesh).name}
     if args.scale != 1.0:
         info["scale"] = args.scale

@@ -66,6 +66,13 @@ from conformill.geometry.differential import curvature_in
 from conformill.types import PathParams
 
 
+#: The program's resolution (mm): coordinates are written with 4 decimals
+#: (:mod:`conformill.output.gcode`). A ball radius, scallop or chord tolerance below it
+#: cannot be held by the program written (and 1e-300 ended in a division by zero or a
+#: ``linspace`` beyond memory, with a traceback).
+RESOLUTION = 1e-4
+
+
 def _positive(name: str, value) -> float:
     try:
         x = float(value)
@@ -73,6 +80,9 @@ def _positive(name: str, value) -> float:
         raise JobValueError(f"{name} must be a number, got {value!r}") from None
     if not math.isfinite(x) or x <= 0.0:
         raise JobValueError(f"{name} must be finite and > 0 mm, got {value!r}")
+    if x < RESOLUTION:
+        raise JobValueError(f"{name} {x:g} mm is below {RESOLUTION:g} mm, the resolution the program is written "
+                            f"to (4 decimals)")
     return x
 
 
@@ -96,8 +106,8 @@ def check_params(tool_radius, scallop, tolerance, stock=0.0) -> PathParams:
     Raises
     ------
     JobValueError
-        A value is not a finite positive number, or the stock is not a finite number above
-        ``-r`` (exit code 2: malformed values).
+        A value is not a finite positive number, or below :data:`RESOLUTION`, or the stock
+        is not a finite number above ``-r`` (exit code 2: malformed values).
     PlanningError
         ``scallop >= tool_radius``: a ball of radius ``r`` cannot leave a cusp of ``r`` or
         more between touching passes (exit code 3: a plan that cannot be met).
@@ -157,7 +167,7 @@ BALL_OVER_PART = 100.0
 
 
 def check_ball_size(tool_radius: float, V: np.ndarray, error: type[Exception] = JobValueError,
-                    name: str = "tool radius") -> None:
+                    name: str = "tool radius", stock: float = 0.0) -> None:
     """Refuse a ball far larger than the part: a radius more than :data:`BALL_OVER_PART`
     times the largest side of the part's bounding box.
 
@@ -181,21 +191,30 @@ def check_ball_size(tool_radius: float, V: np.ndarray, error: type[Exception] = 
         What to raise.
     name : str
         How the message names the radius.
+    stock : float
+        Stock to leave (mm, checked before): the ball that touches the part is of radius
+        ``tool_radius + stock``, and a positive stock counts.
 
     Raises
     ------
     error
-        The radius is more than ``BALL_OVER_PART`` times the part's largest extent.
+        The radius (with a positive stock) is more than ``BALL_OVER_PART`` times the part's
+        largest extent, or the radius is below :data:`RESOLUTION`.
     """
     V = np.asarray(V, dtype=np.float64)
     if V.size == 0:
         return
     ext = V.max(axis=0) - V.min(axis=0)
     r = float(tool_radius)
-    if r > BALL_OVER_PART * float(ext.max()):
-        raise error(f"{name} {r:g} mm is more than {BALL_OVER_PART:g} times the part's size ({ext[0]:.4g} x "
+    s = max(float(stock), 0.0)
+    if r < RESOLUTION:
+        raise error(f"{name} {r:g} mm is below {RESOLUTION:g} mm, the resolution of the programs conformill "
+                    f"writes and reads (4 decimals); check the units of the radius")
+    if r + s > BALL_OVER_PART * float(ext.max()):
+        what = f"{name} {r:g} mm" + (f" plus the stock {s:g} mm" if s > 0 else "")
+        raise error(f"{what} is more than {BALL_OVER_PART:g} times the part's size ({ext[0]:.4g} x "
                     f"{ext[1]:.4g} x {ext[2]:.4g} mm): no ball that large can finish it; check the units of the "
-                    f"radius and of the mesh (--scale)")
+                    f"radius{', the stock' if s > 0 else ''} and of the mesh (--scale)")
 
 
 def side_interval(h, r, kappa):

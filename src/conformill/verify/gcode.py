@@ -272,7 +272,7 @@ def program_text(data: bytes, name: str) -> str:
             first = exc.start
         at = min(first, ctrl.start() if ctrl else len(data), nul if nul >= 0 else len(data))
         raise GCodeError(f"{name} is not a text G-code file (binary data at byte {at})")
-    return data.decode("utf-8", errors="replace")
+    return data.decode("utf-8-sig", errors="replace")  # a UTF-8 byte order mark is not a block
 
 
 def read_gcode(source, chord_tol: float = 0.001, start=None, block_delete: bool = True) -> Program:

@@ -1059,7 +1059,7 @@ def verify(mesh, program: Program, tool_radius: float, n_samples: int = 200_000,
     if not (math.isfinite(r0) and r0 > 0):
         raise ConformillError(f"tool radius must be > 0 mm, got {tool_radius!r}")
     stock = check_stock(stock, r0, ConformillError)
-    check_ball_size(r0, mesh.V, ConformillError)
+    check_ball_size(r0, mesh.V, ConformillError, stock=stock)
     cut_program = program  # the ball of radius r0 as written: what the material is measured against
     program, r = program.for_stock(r0, stock)  # the ball of radius r0 + stock about the same centres
     if judge not in ("interior", "reachable"):

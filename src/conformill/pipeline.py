@@ -20,7 +20,7 @@ from conformill.geometry.surface import DomainSurface
 from conformill.output.gcode import coolant_on, path_control, tool_number
 from conformill.patterns.family import Planner
 from conformill.passes import PassBuilder, threads_can_overlap
-from conformill.planning.steps import RESOLUTION, check_ball_size, check_params, side_interval
+from conformill.planning.steps import check_ball_size, check_params, check_resolution, side_interval
 from conformill.types import PENCIL_SEARCHES, Mesh, PathParams, PlanResult, ToolPath
 
 log = logging.getLogger(__name__)
@@ -255,9 +255,7 @@ def check_job(job: Job) -> PathParams:
         v = getattr(job, name)
         if not np.isfinite(v) or v <= 0:
             raise JobValueError(f"{name.replace('_', '-')} must be a positive number, got {v}")
-    if job.max_step < RESOLUTION:
-        raise JobValueError(f"max-step {job.max_step:g} mm is below {RESOLUTION:g} mm, the resolution the program "
-                            f"is written to (4 decimals)")
+    check_resolution("max-step", job.max_step)
     if job.plunge_feed is not None and (not np.isfinite(job.plunge_feed) or job.plunge_feed <= 0):
         raise JobValueError(f"plunge-feed must be a positive number, got {job.plunge_feed}")
     for name, v in (("feed", job.feed), ("plunge-feed", job.plunge_rate)):

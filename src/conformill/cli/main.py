@@ -41,8 +41,8 @@ class _Parser(argparse.ArgumentParser):
 
     def error(self, message):
         # argparse prints its usage lines first; one line says it, and where the options are
-        self.exit(2, f"{self.prog}: error: {message}{_dash_hint(message, getattr(self, '_words', []), self._option_string_actions)} "
-                     f"(see {self.prog} --help)\n")
+        hint = _dash_hint(message, getattr(self, "_words", []), self._option_string_actions)
+        self.exit(2, f"{self.prog}: error: {message}{hint} (see {self.prog} --help)\n")
 
 
 def _dash_hint(message: str, words: list, options=()) -> str:
@@ -54,7 +54,8 @@ def _dash_hint(message: str, words: list, options=()) -> str:
         return ""
     names = m.group(1).split("/")
     for opt, nxt in zip(words, words[1:]):
-        if opt in names and nxt.startswith("-") and len(nxt) > 1 and nxt.split("=")[0] not in options:
+        value_like = len(nxt) > 1 and nxt.startswith("-") and nxt.split("=")[0] not in options
+        if opt in names and value_like:
             return f" ({nxt!r} starts with '-' and is read as an option: write {opt}={nxt})"
     return ""
 

@@ -73,6 +73,16 @@ from conformill.types import PathParams
 RESOLUTION = 1e-4
 
 
+def check_resolution(name: str, value: float, error: type[Exception] = JobValueError) -> None:
+    """Refuse a length (mm) below :data:`RESOLUTION`: the one check behind the ball radius,
+    scallop and chord tolerance (:func:`check_params`), ``max_step``
+    (:func:`conformill.pipeline.check_job`) and ``verify``'s and ``view``'s radius
+    (:func:`check_ball_size`)."""
+    if value < RESOLUTION:
+        raise error(f"{name} {value:g} mm is below {RESOLUTION:g} mm, the resolution the program is written to "
+                    f"(4 decimals)")
+
+
 def _positive(name: str, value) -> float:
     try:
         x = float(value)
@@ -80,9 +90,7 @@ def _positive(name: str, value) -> float:
         raise JobValueError(f"{name} must be a number, got {value!r}") from None
     if not math.isfinite(x) or x <= 0.0:
         raise JobValueError(f"{name} must be finite and > 0 mm, got {value!r}")
-    if x < RESOLUTION:
-        raise JobValueError(f"{name} {x:g} mm is below {RESOLUTION:g} mm, the resolution the program is written "
-                            f"to (4 decimals)")
+    check_resolution(name, x)
     return x
 
 
@@ -207,9 +215,7 @@ def check_ball_size(tool_radius: float, V: np.ndarray, error: type[Exception] = 
     ext = V.max(axis=0) - V.min(axis=0)
     r = float(tool_radius)
     s = max(float(stock), 0.0)
-    if r < RESOLUTION:
-        raise error(f"{name} {r:g} mm is below {RESOLUTION:g} mm, the resolution of the programs conformill "
-                    f"writes and reads (4 decimals); check the units of the radius")
+    check_resolution(name, r, error)
     if r + s > BALL_OVER_PART * float(ext.max()):
         what = f"{name} {r:g} mm" + (f" plus the stock {s:g} mm" if s > 0 else "")
         raise error(f"{what} is more than {BALL_OVER_PART:g} times the part's size ({ext[0]:.4g} x "

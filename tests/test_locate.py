@@ -180,3 +180,19 @@ class TestMapping:
         # on a sphere the interpolated normal is close to the radial direction
         cos = np.einsum("ij,ij->i", nn[:2], X[:2] / np.linalg.norm(X[:2], axis=1, keepdims=True))
         assert cos.min() > 0.9999
+
+
+def test_pick_faces_is_searchsorted():
+    # the faces picked for area-weighted samples: np.searchsorted(cum, x, side="right"),
+    # the same integers, with zero-area faces (repeated sums), values on the sums, 0 and the total
+    from conformill.geometry.locate import pick_faces
+
+    rng = np.random.default_rng(0)
+    for m in (1, 2, 17, 1000):
+        a = rng.random(m) * (rng.random(m) < 0.7)
+        a[0] = 0.5
+        cum = np.cumsum(a)
+        x = np.concatenate([rng.random(4000) * cum[-1], cum, np.nextafter(cum, -np.inf), [0.0, cum[-1]]])
+        np.testing.assert_array_equal(pick_faces(cum, x), np.searchsorted(cum, x, side="right"))
+    np.testing.assert_array_equal(pick_faces(np.zeros(3), np.array([0.0, 1.0])), [3, 3])
+    assert pick_faces(np.ones(4), np.zeros(0)).shape == (0,)

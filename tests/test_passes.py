@@ -176,6 +176,28 @@ def test_progress_reported_while_the_worker_cuts(recorded):
     assert ids == ids_plain and all(np.array_equal(a, c) for a, c in zip(passes, plain))
 
 
+@pytest.mark.parametrize("link_max", [None, 1e-6])
+def test_passes_so_far_are_the_first_passes(recorded, link_max):
+    # what the pencil's filter reads while the cutter works: the first passes finish()
+    # returns, the last one possibly only its first points (the pass being cut)
+    _, seen = recorded
+    pieces = seen["pieces"]
+    for k in (0, 1, len(pieces) // 3, len(pieces) - 1, len(pieces)):
+        b = _builder(seen, False, 7, link_max=link_max)
+        for pc in pieces[:k]:
+            b._take(pc)  # as the worker does
+        early = b.passes_so_far()
+        for pc in pieces[k:]:
+            b.add(pc)
+        passes = b.finish()[0]
+        assert len(early) <= len(passes)
+        for i, e in enumerate(early):
+            full = passes[i]
+            assert np.array_equal(e, full if i < len(early) - 1 else full[:len(e)])
+        if k == 0:
+            assert early == []
+
+
 def test_retracts_split_passes_the_same_way_in_batches(recorded):
     _, seen = recorded
     (whole, ids_w, _, _), bw = _build(seen, False, 10**9, link_max=1e-6)

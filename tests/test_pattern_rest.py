@@ -111,3 +111,34 @@ def test_moves_that_are_not_finite_are_named():
     A, B = centre_moves([np.array([[0.0, 0, 0], [1, 0, 0], [np.nan, 0, 0], [3, 0, 0]])], 1.0)
     with pytest.raises(ValueError, match=r"move ends A must be finite; not at rows \[2\]"):
         uncut_beyond(np.zeros((1, 3)), A, B, 1.0, 0.01)
+
+
+@pytest.mark.parametrize("parts", [2, 3, 7])
+def test_moves_handed_over_in_parts_give_the_same_answers(parts):
+    # UncutRows: the moves in parts (a pass split anywhere, as the pipeline hands over the
+    # passes cut so far), rows of three points some of them NaN: the same rows as one call,
+    # and as brute force
+    rng = np.random.default_rng(parts)
+    tips = [np.column_stack([rng.uniform(-8, 8, 40), rng.uniform(-6, 6, 40), rng.uniform(-1, 1, 40)])
+            for _ in range(5)]
+    A, B = centre_moves(tips, R)
+    Q = np.column_stack([rng.uniform(-10, 10, 3000), rng.uniform(-8, 8, 3000),
+                         rng.uniform(-2, 6, 3000)]).reshape(1000, 3, 3)
+    Q[rng.random(1000) < 0.05, 2] = np.nan
+    want = uncut_beyond(Q, A, B, R, 0.05)
+    d = _brute(np.nan_to_num(Q.reshape(-1, 3), nan=1e6), A, B).reshape(1000, 3)
+    np.testing.assert_array_equal(want, (d > R + 0.05).any(axis=1))
+    assert 0 < want.sum() < len(Q)
+    cuts = np.sort(rng.choice(np.arange(1, len(A)), parts - 1, replace=False))
+    rows = pr.UncutRows(Q, R, 0.05)
+    for a, b in zip(np.r_[0, cuts], np.r_[cuts, len(A)]):
+        rows.add(A[a:b], B[a:b])
+        rows.add(A[:0], B[:0])  # nothing: no change
+    np.testing.assert_array_equal(rows.uncut(), want)
+
+
+def test_rows_before_any_moves_are_uncut():
+    rows = pr.UncutRows(np.zeros((4, 2, 3)), R, 0.01)
+    np.testing.assert_array_equal(rows.uncut(), [True] * 4)
+    with pytest.raises(ValueError, match="as many move starts as ends"):
+        rows.add(np.zeros((2, 3)), np.zeros((1, 3)))

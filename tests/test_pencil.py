@@ -593,6 +593,27 @@ def test_where_left_keeps_what_has_no_probes():
     np.testing.assert_array_equal(pencil.where_left(found, tips, R, 0.01), [False, True, True])
 
 
+def test_where_left_from_passes_in_parts():
+    # LeftToCut: the passes handed over as the pipeline does (those cut so far, the last of
+    # them in part; then the rest of it and the passes after), the same centres kept
+    rng = np.random.default_rng(3)
+    probes = np.column_stack([rng.uniform(-10, 10, 600), rng.uniform(-10, 10, 600),
+                              rng.uniform(-1, 1, 600)]).reshape(200, 3, 3)
+    probes[::7] = np.nan  # no probes: always cut
+    found = pencil.PencilFound(centres=np.zeros((200, 3)), probes=probes, spacing=0.2)
+    y = np.arange(-9.0, 9.5, 1.5)
+    tips = [np.column_stack([np.linspace(-9, 9, 25), np.full(25, v), rng.uniform(-0.5, 0.5, 25)]) for v in y]
+    want = pencil.where_left(found, tips, R, 0.05)
+    assert 0 < want.sum() < 200 and want[::7].all()
+    for n, k in ((0, 0), (3, 10), (5, 25), (len(tips), 25)):
+        early = tips[:n - 1] + [tips[n - 1][:k]] if n else []
+        left = pencil.LeftToCut(found, R, 0.05)
+        left.add(early)
+        rest = [tips[n - 1][k - 1:]] if n else []
+        left.add(rest + tips[n:])
+        np.testing.assert_array_equal(left.keep(), want)
+
+
 @pytest.mark.parametrize("over, words", [
     ({"pencil_left": -0.5}, "pencil-left must be a number >= 0"),
     ({"pencil_left": float("nan")}, "pencil-left must be a number >= 0"),

@@ -80,6 +80,7 @@ class _Pass:
         self.last = None  # last refined centre: the first point of the next batch's moves
         self.last_tri = -1  # the triangle it rests on (a hint for the cutter)
         self.air = None  # with hops: centres and contacts of a lifted run after ``last``, undecided
+        self.tips = None  # once finished: its tip polylines and hops (PassBuilder._tips)
 
 
 class PassBuilder:
@@ -239,21 +240,49 @@ class PassBuilder:
         passes, ids, lifts, hops = [], [], [], []
         for p in self._done:
             lifts.extend(p.lifts)
-            run, hop = [], None  # a pair in p.centres: a hop (centre heights across and down to)
-            for c in p.centres + [None]:
-                if isinstance(c, np.ndarray):
-                    run.append(c)
-                    continue
-                if run:
-                    centres = np.concatenate(run)
-                    # drop consecutive duplicates (a centre point path, link ends)
-                    keep = np.ones(len(centres), dtype=bool)
-                    keep[1:] = np.any(np.abs(np.diff(centres, axis=0)) > 1e-9, axis=1)
-                    passes.append(self.cutter.tip(centres[keep]))
-                    ids.append(p.path_id)
-                    hops.append(None if hop is None else tuple(z - self.cutter.radius for z in hop))
-                run, hop = [], c
+            pp, hh = self._tips(p)
+            passes.extend(pp)
+            ids.extend([p.path_id] * len(pp))
+            hops.extend(hh)
         return passes, ids, lifts, hops
+
+    def passes_so_far(self) -> list:
+        """The tool-tip polylines cut so far, while the worker cuts the rest (call it from
+        the caller's thread, as :meth:`finish`): the first passes :meth:`finish` returns,
+        the same values, the last of them possibly only the first points of its pass (the
+        pass being cut)."""
+        done = list(self._done)  # (the worker appends to these lists)
+        out = [q for p in done for q in self._tips(p)[0]]
+        if len(self._passes) > len(done):
+            out.extend(self._runs(list(self._passes[len(done)].centres))[0])
+        return out
+
+    def _tips(self, p: _Pass):
+        """A finished pass's tip polylines and the hop into each (``finish``'s ``passes``
+        and ``hops``), made once (a finished pass does not change)."""
+        if p.tips is None:
+            p.tips = self._runs(p.centres)
+        return p.tips
+
+    def _runs(self, items):
+        """Tip polylines and hops of a pass's ``centres`` items (arrays of centres, and a
+        pair of centre heights for each hop between runs)."""
+        passes, hops = [], []
+        run, hop = [], None  # a pair in p.centres: a hop (centre heights across and down to)
+        for c in items + [None]:
+            if isinstance(c, np.ndarray):
+                run.append(c)
+                continue
+            if run:
+                centres = np.concatenate(run)
+                # drop consecutive duplicates (a centre point path, link ends): decided pair by
+                # pair, so the runs of a pass being cut are the first points of its runs
+                keep = np.ones(len(centres), dtype=bool)
+                keep[1:] = np.any(np.abs(np.diff(centres, axis=0)) > 1e-9, axis=1)
+                passes.append(self.cutter.tip(centres[keep]))
+                hops.append(None if hop is None else tuple(z - self.cutter.radius for z in hop))
+            run, hop = [], c
+        return passes, hops
 
     def __enter__(self):
         return self

@@ -33,7 +33,7 @@ from numba import njit, prange
 
 from conformill.geometry.closest import segment_d2
 
-__all__ = ["centre_moves", "uncut_beyond"]
+__all__ = ["UncutRows", "centre_moves", "uncut_beyond"]
 
 #: Side of the moves' grid cells (mm), and about the most cells (the cells grow to fit).
 _CELL = 0.5
@@ -133,20 +133,104 @@ def _reached(qx, qy, qz, A, B, reach, x0, y0, cell, ncx, ncy, start, item, zlo, 
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _uncut(Q, A, B, reach, x0, y0, cell, ncx, ncy, start, item, zlo, zhi):
-    """For each row of ``Q (n, p, 3)``: whether some point of it lies beyond ``reach`` of
-    every move (the row's points after the first such one are not read; a point with a NaN
-    counts as beyond)."""
+def _first_beyond(Q, first, reach, A, B, x0, y0, cell, ncx, ncy, start, item, zlo, zhi,
+                  A0, B0, x00, y00, cell0, ncx0, ncy0, start0, item0, zlo0, zhi0):
+    """For each row of ``Q (n, p, 3)``: the first point beyond ``reach`` of every move, of
+    the new ones (``A, B`` and their grid) and of those handed over before (``A0, B0``
+    and theirs), or ``p`` when there is none (a point with a NaN counts as beyond). The
+    row's points before ``first[q]`` are known reached, and the point ``first[q]`` (when
+    below ``p``) known beyond the earlier moves, so it is tested against the new ones
+    only; the row's points after the first beyond are not read."""
     n, p = Q.shape[0], Q.shape[1]
-    out = np.zeros(n, dtype=np.bool_)
+    out = np.empty(n, dtype=np.int64)
     for q in prange(n):
-        for s in range(p):
+        out[q] = p
+        for s in range(first[q], p):
             qx, qy, qz = Q[q, s, 0], Q[q, s, 1], Q[q, s, 2]
-            if not (qx == qx and qy == qy and qz == qz) or not _reached(
-                    qx, qy, qz, A, B, reach, x0, y0, cell, ncx, ncy, start, item, zlo, zhi):
-                out[q] = True
+            if not (qx == qx and qy == qy and qz == qz):
+                out[q] = s
                 break
+            if _reached(qx, qy, qz, A, B, reach, x0, y0, cell, ncx, ncy, start, item, zlo, zhi):
+                continue
+            if s > first[q] and _reached(qx, qy, qz, A0, B0, reach, x00, y00, cell0, ncx0, ncy0, start0, item0,
+                                         zlo0, zhi0):
+                continue
+            out[q] = s
+            break
     return out
+
+
+class _MoveGrid:
+    """The centre moves ``A -> B`` binned on an XY grid (:func:`_bin`), as the kernels take them."""
+
+    def __init__(self, A, B):
+        self.A, self.B = A, B
+        if len(A) == 0:  # one empty cell
+            self.args = (A, B, 0.0, 0.0, _CELL, 1, 1, np.zeros(2, dtype=np.int64), np.zeros(0, dtype=np.int32),
+                         np.full(1, np.inf), np.full(1, -np.inf))
+            return
+        lo = np.minimum(A[:, :2].min(axis=0), B[:, :2].min(axis=0))
+        hi = np.maximum(A[:, :2].max(axis=0), B[:, :2].max(axis=0))
+        cell = max(_CELL, math.sqrt(float(np.prod(hi - lo + _CELL)) / _MAX_CELLS))
+        ncx, ncy = (int(v) for v in np.floor((hi - lo) / cell) + 1)
+        start, item, zlo, zhi = _bin(A, B, float(lo[0]), float(lo[1]), cell, ncx, ncy)
+        self.args = (A, B, float(lo[0]), float(lo[1]), cell, ncx, ncy, start, item, zlo, zhi)
+
+
+def _moves(A, B):
+    A = np.ascontiguousarray(A, dtype=np.float64).reshape(-1, 3)
+    B = np.ascontiguousarray(B, dtype=np.float64).reshape(-1, 3)
+    if len(A) != len(B):
+        raise ValueError(f"as many move starts as ends are needed, got {len(A)} and {len(B)}")
+    for name, X in (("A", A), ("B", B)):
+        if not np.isfinite(X).all():
+            bad = np.flatnonzero(~np.isfinite(X).all(axis=1))
+            raise ValueError(f"move ends {name} must be finite; not at rows {bad[:5].tolist()}")
+    return A, B
+
+
+class UncutRows:
+    """:func:`uncut_beyond` for moves handed over in parts: the answer once every part is
+    in is the same as one call on all the moves.
+
+    The pipeline hands over the passes cut so far while the cutter works on the rest, and
+    the rest once it is done: only the rows whose first unreached point is still unreached
+    are then read again, against the new moves.
+
+    Parameters
+    ----------
+    points : (n, 3) or (n, p, 3) float
+        As for :func:`uncut_beyond`.
+    radius, depth : float
+        As for :func:`uncut_beyond`.
+    """
+
+    def __init__(self, points, radius: float, depth: float):
+        Q = np.asarray(points, dtype=np.float64)
+        self._Q = np.ascontiguousarray(Q.reshape(-1, 1, 3) if Q.ndim < 3 else Q)
+        self._reach = float(radius) + float(depth)
+        if not (np.isfinite(self._reach) and radius > 0 and depth >= 0):
+            raise ValueError(f"radius must be finite and positive and depth finite and >= 0, got {radius}, {depth}")
+        self._first = np.zeros(len(self._Q), dtype=np.int64)
+        self._parts = []  # the moves handed over, (A, B) per part
+        self._before = None  # a _MoveGrid of all of them
+
+    def add(self, A, B) -> None:
+        """Hand over more centre moves (``(m, 3)`` each, :func:`centre_moves`)."""
+        A, B = _moves(A, B)
+        if len(A) == 0 or len(self._Q) == 0:
+            return
+        if self._before is None:  # the moves so far as one grid (none: an empty one)
+            self._before = _MoveGrid(np.vstack([a for a, _ in self._parts]), np.vstack([b for _, b in self._parts])) \
+                if self._parts else _MoveGrid(np.zeros((0, 3)), np.zeros((0, 3)))
+        new = _MoveGrid(A, B)
+        self._first = _first_beyond(self._Q, self._first, self._reach, *new.args, *self._before.args)
+        self._parts.append((A, B))
+        self._before = new if len(self._parts) == 1 else None  # built again by the next add, if any
+
+    def uncut(self) -> np.ndarray:
+        """``(n,)`` bool: the rows with a point beyond ``radius + depth`` of every move so far."""
+        return self._first < self._Q.shape[1]
 
 
 def uncut_beyond(points, A, B, radius: float, depth: float) -> np.ndarray:
@@ -170,22 +254,6 @@ def uncut_beyond(points, A, B, radius: float, depth: float) -> np.ndarray:
     -------
     (n,) bool
     """
-    Q = np.asarray(points, dtype=np.float64)
-    Q = np.ascontiguousarray(Q.reshape(-1, 1, 3) if Q.ndim < 3 else Q)
-    A = np.ascontiguousarray(A, dtype=np.float64).reshape(-1, 3)
-    B = np.ascontiguousarray(B, dtype=np.float64).reshape(-1, 3)
-    reach = float(radius) + float(depth)
-    if not (np.isfinite(reach) and radius > 0 and depth >= 0):
-        raise ValueError(f"radius must be finite and positive and depth finite and >= 0, got {radius}, {depth}")
-    for name, X in (("A", A), ("B", B)):
-        if not np.isfinite(X).all():
-            bad = np.flatnonzero(~np.isfinite(X).all(axis=1))
-            raise ValueError(f"move ends {name} must be finite; not at rows {bad[:5].tolist()}")
-    if len(A) == 0 or len(Q) == 0:
-        return np.ones(len(Q), dtype=bool)
-    lo = np.minimum(A[:, :2].min(axis=0), B[:, :2].min(axis=0))
-    hi = np.maximum(A[:, :2].max(axis=0), B[:, :2].max(axis=0))
-    cell = max(_CELL, math.sqrt(float(np.prod(hi - lo + _CELL)) / _MAX_CELLS))
-    ncx, ncy = (int(v) for v in np.floor((hi - lo) / cell) + 1)
-    start, item, zlo, zhi = _bin(A, B, float(lo[0]), float(lo[1]), cell, ncx, ncy)
-    return _uncut(Q, A, B, reach, float(lo[0]), float(lo[1]), cell, ncx, ncy, start, item, zlo, zhi)
+    rows = UncutRows(points, radius, depth)
+    rows.add(A, B)
+    return rows.uncut()

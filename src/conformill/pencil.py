@@ -93,8 +93,8 @@ from conformill.cutter import _drop_point, _set_drop, cell_at, xy_barycentric
 from conformill.errors import PlanningError
 from conformill.types import PENCIL_SEARCHES
 
-__all__ = ["SEARCHES", "PencilChains", "PencilFound", "PencilResult", "best_centres", "chains_of", "link_chains",
-           "pencil_chains", "pencil_passes", "pencil_search", "surface_samples", "where_left"]
+__all__ = ["SEARCHES", "LeftToCut", "PencilChains", "PencilFound", "PencilResult", "best_centres", "chains_of",
+           "link_chains", "pencil_chains", "pencil_passes", "pencil_search", "surface_samples", "where_left"]
 
 log = logging.getLogger(__name__)
 
@@ -394,7 +394,7 @@ def surface_samples(V, F, density: float, seed: int = 0, areas=None, below_nz: f
     faces : (k,) int64
     """
     from conformill.geometry.differential import vertex_normals
-    from conformill.geometry.locate import map_normals, map_points
+    from conformill.geometry.locate import map_normals, map_points, pick_faces
 
     V = np.asarray(V, dtype=np.float64)
     F = np.asarray(F, dtype=np.int64)
@@ -402,7 +402,7 @@ def surface_samples(V, F, density: float, seed: int = 0, areas=None, below_nz: f
     n = int(round(density * float(a.sum())))
     rng = np.random.default_rng(seed)
     cum = np.cumsum(a)
-    f = np.minimum(np.searchsorted(cum, rng.random(n) * cum[-1], side="right"), len(F) - 1)
+    f = np.minimum(pick_faces(cum, rng.random(n) * cum[-1]), len(F) - 1)
     u, v = rng.random(n), rng.random(n)
     flip = u + v > 1.0
     u[flip], v[flip] = 1.0 - u[flip], 1.0 - v[flip]
@@ -878,14 +878,34 @@ def where_left(found: PencilFound, passes, radius: float, depth: float) -> np.nd
     """Which of ``found``'s centres to cut after the pattern's tip ``passes``: those with a
     probe where the passes leave more than ``depth`` (:func:`conformill.pattern_rest.uncut_beyond`),
     and those without probes. Returns ``(k,)`` bool."""
-    from conformill.pattern_rest import centre_moves, uncut_beyond
+    left = LeftToCut(found, radius, depth)
+    left.add(passes)
+    return left.keep()
 
-    probed = found.probed
-    keep = ~probed
-    if probed.any():
-        A, B = centre_moves(passes, radius)
-        keep[probed] = uncut_beyond(found.probes[probed], A, B, radius, depth)
-    return keep
+
+class LeftToCut:
+    """:func:`where_left` for the pattern's passes handed over in parts, the same answer
+    once all are in (:class:`conformill.pattern_rest.UncutRows`): the pipeline hands over
+    the passes cut so far while the cutter works on the rest."""
+
+    def __init__(self, found: PencilFound, radius: float, depth: float):
+        from conformill.pattern_rest import UncutRows
+
+        self._probed = found.probed
+        self._radius = float(radius)
+        self._rows = UncutRows(found.probes[self._probed], radius, depth)
+
+    def add(self, passes) -> None:
+        """More tip passes (a list of ``(k, 3)``)."""
+        from conformill.pattern_rest import centre_moves
+
+        self._rows.add(*centre_moves(passes, self._radius))
+
+    def keep(self) -> np.ndarray:
+        """``(k,)`` bool: the centres to cut after the passes so far."""
+        keep = ~self._probed
+        keep[self._probed] = self._rows.uncut()
+        return keep
 
 
 def fold_jump(r: float, h: float, spacing: float, low: float = 0.15) -> float:

@@ -615,6 +615,19 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
             if end is not None:
                 background.link_from(end, e, link_max)
         say("cutter", builder.fraction_cut())
+        left = None
+        if background is not None and filtered:
+            from conformill.pencil import LeftToCut
+
+            # the pencil's filter reads the passes cut so far while the cutter works on
+            # the rest, then only the rest (the same centres kept as from all at once)
+            with timer("pencil"):
+                found = background.result(wait=lambda f: say("cutter", builder.fraction_cut()))
+                timer.t["pencil_busy"] = background.busy_s
+                with timer("pencil_left"):
+                    left = LeftToCut(found, r_cut, job.pencil_left * h)
+                    early = builder.passes_so_far()
+                    left.add(early)
         t_wait = time.perf_counter()
         passes, pass_ids, lifts, hops = builder.finish(progress=lambda f: say("cutter", f))
         t_wait = time.perf_counter() - t_wait
@@ -629,21 +642,24 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
                      "minutes_saved": builder.hop_saved}
         pencil = None
         if job.pencil:
-            from conformill.pencil import chains_of, link_chains, pencil_chains, pencil_search, where_left
+            from conformill.pencil import LeftToCut, chains_of, link_chains, pencil_chains, pencil_search
 
             say("pencil", 0.0)
             with timer("pencil"):  # beside the other stages: the wait for the search and links
                 cutter = builder.cutter if builder.cutter is not None else BallCutter(mesh.V, mesh.F, r_cut)
                 start = passes[-1][-1, :2] if passes else mesh.V[:, :2].mean(axis=0)
                 if filtered:  # the centres where the pattern left more than pencil_left h
-                    wait = (lambda f: say("pencil", 0.8 * f))
-                    if background is not None:
-                        found = background.result(wait=wait)
-                        timer.t["pencil_busy"] = background.busy_s
-                    else:
-                        found = pencil_search(cutter, *search_args, **search_kw, progress=wait)
+                    if left is None:
+                        found = pencil_search(cutter, *search_args, **search_kw,
+                                              progress=lambda f: say("pencil", 0.8 * f))
+                        left = LeftToCut(found, r_cut, job.pencil_left * h)
+                        early = []
                     with timer("pencil_left"):
-                        keep = where_left(found, passes, r_cut, job.pencil_left * h)
+                        # the moves after those already read: the rest of the last pass
+                        # read in part, then the passes after it
+                        rest = [passes[len(early) - 1][len(early[-1]) - 1:]] if early else []
+                        left.add(rest + passes[len(early):])
+                        keep = left.keep()
                     found = replace(found, stats={**found.stats, "left_h": float(job.pencil_left),
                                                   "fold_points_cut": int(np.count_nonzero(keep & found.probed))})
                     found = chains_of(cutter, found, 1, job.settle * h, keep)

@@ -260,4 +260,55 @@ def map_normals(normals: np.ndarray, F: np.ndarray, face: np.ndarray, bary: np.n
         return np.where(ln > 0, nn / np.where(ln > 0, ln, 1.0), np.nan)
 
 
-__all__ = ["Locator", "map_points", "map_normals"]
+@njit(cache=True, nogil=True)
+def _pick(cum, x, scale):
+    m = cum.shape[0]
+    # start[b]: the first index whose cumulative value exceeds b / scale (one merge pass)
+    start = np.empty(m, dtype=np.int64)
+    i = 0
+    for b in range(m):
+        while i < m and cum[i] <= b / scale:
+            i += 1
+        start[b] = i
+    out = np.empty(x.shape[0], dtype=np.int64)
+    for k in range(x.shape[0]):
+        xk = x[k]
+        b = min(max(int(xk * scale), 0), m - 1)  # a guess: rounding is mended below
+        i = start[b]
+        while i > 0 and cum[i - 1] > xk:
+            i -= 1
+        while i < m and cum[i] <= xk:
+            i += 1
+        out[k] = i
+    return out
+
+
+def pick_faces(cum: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """The index of the interval of a cumulative sum that holds each value:
+    ``np.searchsorted(cum, x, side="right")``, the same integers, for area-weighted face
+    sampling (``cum`` the faces' cumulative areas, ``x`` uniform in ``[0, cum[-1])``).
+
+    A bucket table over ``[0, cum[-1]]`` puts each value one or two steps from its
+    answer, where a binary search takes about ``log2(m)`` scattered reads (igea, 695k
+    values in 155k faces: about 0.1 s, a few per cent of the pencil's search).
+
+    Parameters
+    ----------
+    cum : (m,) float64
+        Non-decreasing, ``cum[-1] > 0``.
+    x : (k,) float64
+        Finite.
+
+    Returns
+    -------
+    (k,) int64
+        In ``[0, m]``.
+    """
+    cum = np.ascontiguousarray(cum, dtype=np.float64)
+    x = np.ascontiguousarray(x, dtype=np.float64)
+    if len(cum) == 0 or not cum[-1] > 0:
+        return np.searchsorted(cum, x, side="right")
+    return _pick(cum, x, len(cum) / float(cum[-1]))
+
+
+__all__ = ["Locator", "map_points", "map_normals", "pick_faces"]

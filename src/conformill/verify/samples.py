@@ -14,6 +14,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from conformill.errors import MeshError
+from conformill.geometry.locate import pick_faces
 
 __all__ = ["SurfaceSamples", "sample_surface", "boundary_edges", "vertex_normals"]
 
@@ -164,7 +165,7 @@ def sample_surface(V: np.ndarray, F: np.ndarray, n: int, seed: int = 0, normals:
         log.warning("mesh normals point to -Z on average: flipped so that they face the tool (+Z)")
     rng = np.random.default_rng(seed)
     cdf = np.cumsum(area2)
-    face = np.searchsorted(cdf, rng.random(int(n)) * cdf[-1], side="right")
+    face = pick_faces(cdf, rng.random(int(n)) * cdf[-1])
     face = np.minimum(face, len(F) - 1)
     su = np.sqrt(rng.random(int(n)))
     v = rng.random(int(n))

@@ -309,9 +309,11 @@ def test_a_binary_file_is_named_as_such(tmp_path, data, at):
         read_gcode(f)
 
 
-def test_utf16_text_and_a_latin1_comment(tmp_path):
+@pytest.mark.parametrize("codec", ["utf-16", "utf-16-le", "utf-16-be"])
+def test_utf16_text_and_a_latin1_comment(tmp_path, codec):
+    # UTF-16 with its byte order mark or without (every other byte NUL): named as such
     f = tmp_path / "u16.nc"
-    f.write_bytes(PROGRAM.decode().encode("utf-16"))
+    f.write_bytes(PROGRAM.decode().encode(codec))
     with pytest.raises(GCodeError, match="is UTF-16 text.*save it as ASCII or UTF-8"):
         read_gcode(f)
     # a few bytes that are not UTF-8 in a comment (Latin-1) are text: read as before

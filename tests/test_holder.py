@@ -246,7 +246,6 @@ def _mesh(path):
     (["--holder-step", "20@10"], "need --holder-radius"),
     (["--holder-radius", "10", "--holder-step", "20"], "expected R@H"),
     (["--holder-radius", "10", "--holder-step", "20@0"], "height must be a positive"),
-    (["--holder-radius", "2"], "must be larger than the tool radius"),
     (["--holder-radius", "10", "--stick-out", "-1"], "stick-out must be a positive number"),
     (["--holder-radius", "nan"], "holder radius must be a positive number"),
 ])
@@ -255,6 +254,21 @@ def test_plan_bad_holder_values_exit_2_without_output(dome, tmp_path, capsys, ex
     err = capsys.readouterr().err
     assert word in err and "Traceback" not in err
     assert not (tmp_path / "p.nc").exists()
+
+
+def test_a_holder_not_wider_than_the_tool_exits_3(dome, tmp_path, capsys):
+    # two well-formed values that cannot be checked together, as a blend above the tool
+    # radius: exit 3, from plan and from verify, nothing written
+    assert _plan(dome, tmp_path, "--holder-radius", "2") == 3
+    err = capsys.readouterr().err
+    assert "must be larger than the tool radius" in err and "Traceback" not in err
+    assert not (tmp_path / "p.nc").exists()
+    assert _plan(dome, tmp_path) == 0
+    args = ["verify", str(dome), str(tmp_path / "p.nc"), "-r", "3", "--samples", "5000", "--holder-radius", "3",
+            "--report", str(tmp_path / "v.json")]
+    assert main(args) == 3
+    assert "must be larger than the tool radius" in capsys.readouterr().err
+    assert not (tmp_path / "v.json").exists()
 
 
 def test_verify_holder_pass_and_fail(dome, tmp_path, capsys):

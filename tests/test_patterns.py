@@ -178,3 +178,29 @@ def test_exact_distance_on_a_closed_curve_measures_both_sides_of_the_seam():
             got = _around_vertex(P[at_seam], Q, np.full(int(at_seam.sum()), seam), True)
             np.testing.assert_allclose(got, want[at_seam], rtol=0, atol=1e-12)
     assert seen > 200
+
+
+@pytest.mark.parametrize("max_step", [1.0, 0.1, 0.02])
+def test_plan_meets_the_longest_forward_step(max_step):
+    # --max-step below the dense samples' spacing (about 0.36 mm here) was not met: the CC
+    # steps were chosen among the samples, 0.36 mm apart for a max-step of 0.01 mm; and the
+    # equidistribution let a step reach the step plus one sample (1.3 mm for 1.0)
+    from conformill.mesh import synthetic
+    from conformill.pipeline import Job, plan
+
+    res = plan(synthetic.sphere_cap(), Job(pattern="zigzag", tool_radius=3.0, scallop=0.05, tolerance=0.01,
+                                           max_step=max_step))
+    steps = np.concatenate([np.linalg.norm(np.diff(c, axis=0), axis=1) for c in res.cc_paths])
+    assert steps.max() <= max_step * (1 + 1e-12)
+    assert np.median(steps) > 0.5 * max_step  # not a crowd of tiny steps either
+
+
+def test_select_forward_caps_the_chords():
+    # a straight line sampled every 0.3 mm: no chord longer than max_step where samples
+    # allow, one sample apart where they do not
+    X = np.column_stack([np.arange(0, 30.0, 0.3), np.zeros(100), np.zeros(100)])
+    for ms in (5.0, 1.0, 0.3, 0.1):
+        idx = select_forward(X, np.zeros(100), 0.01, max_step=ms)
+        st = np.diff(X[idx, 0])
+        assert idx[0] == 0 and idx[-1] == 99
+        assert st.max() <= max(ms, 0.3) + 1e-9

@@ -18,8 +18,8 @@ Which job checks give which code:
 - 3 (:class:`PlanningError`): well-formed values that cannot be met together or on this
   part: a scallop at or above the tool radius, a blend larger than the tool radius, a
   safe height below the part, a program too large for the memory, a parameterization with
-  flipped faces, a side step that collapses or too many paths, a holder that meets the
-  part at the stick-out given.
+  flipped faces, a side step that collapses or too many paths, a holder not wider than
+  the tool or one that meets the part at the stick-out given.
 """
 
 from __future__ import annotations

@@ -413,11 +413,13 @@ def _physical_memory() -> float | None:
         return None
 
 
-def _sample_spacing(mesh: Mesh, flat_ls: float) -> float:
+def _sample_spacing(mesh: Mesh, flat_ls: float, max_step: float = np.inf) -> float:
     """The planner's dense sample spacing on ``mesh``: about one edge (the fitted fields are
-    linear inside a face), never coarser than a third of the flat side step."""
+    linear inside a face), never coarser than a third of the flat side step, nor than the
+    longest forward step (the forward steps are chosen among the samples: a ``--max-step``
+    below their spacing was not met, steps of 0.36 mm for a max-step of 0.01 mm)."""
     edges = np.linalg.norm(mesh.V[mesh.F[:, 1]] - mesh.V[mesh.F[:, 0]], axis=1)
-    return min(float(np.median(edges)), flat_ls / 3.0)
+    return min(float(np.median(edges)), flat_ls / 3.0, float(max_step))
 
 
 def _check_size(mesh: Mesh, area: float, flat_ls: float, memory: float | None = None,
@@ -511,7 +513,7 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
                             + (f" (with its {stock:g} mm of stock)" if stock > 0 else ""))
 
     flat_ls = float(side_interval(h, r, np.zeros(1))[0][0])
-    spacing = _sample_spacing(mesh, flat_ls)
+    spacing = _sample_spacing(mesh, flat_ls, job.max_step)
     _check_size(mesh, total_area, flat_ls, spacing=spacing)
     # Forward chord tolerance. Over a concave stretch the straight move rides above the
     # surface by up to the chord deviation, and that material adds to the scallop: with
@@ -584,7 +586,7 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
                             "(--scan: the settings for a scanned part, the pencil among them)")
 
         # dense sampling: about one edge of the mesh the planner sees (the input's unless split)
-        seg_len = spacing if fmesh is mesh else _sample_spacing(fmesh, flat_ls)
+        seg_len = spacing if fmesh is mesh else _sample_spacing(fmesh, flat_ls, job.max_step)
         sigma = np.median(q.sigma[np.isfinite(q.sigma) & (q.sigma > 0)])
         delta = seg_len / sigma
         planner = Planner(surface, params, seg_len, concave_cap=flat_ls if job.concave_steps == "flat" else None,

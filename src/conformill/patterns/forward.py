@@ -2,7 +2,8 @@
 
 The paper steps ``l_f = sqrt(8 e R - 4 e^2)`` along the path from the normal curvature.
 Here the steps are chosen from the dense samples of the path so that the local step
-never exceeds ``l_f`` (equidistribution of ``ds / l_f``), and then every chord is checked
+never exceeds ``l_f`` (equidistribution of ``ds / l_f``), no chord is longer than the
+longest step allowed, and then every chord is checked
 against the dense samples it skips: where one deviates by more than ``e``, the sample
 farthest from the chord is added (so the guarantee holds on the mesh, creases included,
 not only where the quadratic fit is right).
@@ -82,7 +83,8 @@ def select_forward(X: np.ndarray, kappa: np.ndarray, e: float, max_step: float, 
     e : float
         Chord deviation tolerance (mm).
     max_step : float
-        Longest step allowed on flat ground (mm).
+        Longest step allowed (mm): on flat ground the step, and no chord longer (where the
+        samples lie closer than this).
     e_convex : float, optional
         Tolerance where the path is convex along its direction (``kappa < 0``); a chord
         that skips a concave or flat sample keeps ``e``. Default ``e``.
@@ -108,8 +110,45 @@ def select_forward(X: np.ndarray, kappa: np.ndarray, e: float, max_step: float, 
     idx = np.searchsorted(N, targets, side="right") - 1
     idx[-1] = k - 1
     idx = np.unique(np.clip(idx, 0, k - 1))
-    # make sure no chord skips more length than allowed where equidistribution was coarse
-    return _add_farthest(np.ascontiguousarray(X, dtype=np.float64), tol, idx.astype(np.int64), max_rounds)
+    X = np.ascontiguousarray(X, dtype=np.float64)
+    # the equidistribution keeps a step within l_f plus one sample: no chord longer than
+    # max_step (where samples allow), then none deviating more than allowed
+    idx = _cap_steps(X, idx.astype(np.int64), float(max_step))
+    return _add_farthest(X, tol, idx, max_rounds)
+
+
+@njit(cache=True, nogil=True)
+def _cap_steps(X, idx, max_step):
+    """``idx`` with samples added so that no chord is longer than ``max_step``: after each
+    kept sample, the farthest sample within ``max_step`` of it (the next sample where even
+    that one is farther)."""
+    m = idx.shape[0]
+    out = np.empty(X.shape[0], dtype=np.int64)
+    n = 0
+    m2 = max_step * max_step
+    for j in range(m - 1):
+        cur = idx[j]
+        out[n] = cur
+        n += 1
+        b = idx[j + 1]
+        while True:
+            dx, dy, dz = X[b, 0] - X[cur, 0], X[b, 1] - X[cur, 1], X[b, 2] - X[cur, 2]
+            if dx * dx + dy * dy + dz * dz <= m2:
+                break
+            i = cur + 1
+            while i + 1 < b:
+                ex, ey, ez = X[i + 1, 0] - X[cur, 0], X[i + 1, 1] - X[cur, 1], X[i + 1, 2] - X[cur, 2]
+                if ex * ex + ey * ey + ez * ez > m2:
+                    break
+                i += 1
+            cur = i
+            if cur >= b:
+                break
+            out[n] = cur
+            n += 1
+    out[n] = idx[m - 1]
+    n += 1
+    return out[:n].copy()
 
 
 @njit(cache=True, nogil=True)

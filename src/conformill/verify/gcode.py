@@ -234,10 +234,23 @@ _CONTROL = re.compile(rb"[\x00-\x08\x0e-\x19\x1b-\x1f\x7f]")
 _BINARY_SHARE = 0.1
 
 
+def _utf16_without_bom(head: bytes) -> bool:
+    """Whether ``head`` reads as UTF-16 text of ASCII characters: every other byte NUL
+    (the high bytes), none of the others (at least four characters, all but 2 % so)."""
+    head = head[:len(head) // 2 * 2]
+    if len(head) < 8:
+        return False
+    for lo, hi in ((head[0::2], head[1::2]), (head[1::2], head[0::2])):  # little-, big-endian
+        if hi.count(0) >= 0.98 * len(hi) and lo.count(0) == 0:
+            return True
+    return False
+
+
 def program_text(data: bytes, name: str) -> str:
     """The text of a G-code program read as bytes, or :class:`GCodeError` when it is binary.
 
-    Binary: a NUL byte anywhere (UTF-16 text included, named as such), or more than
+    Binary: a NUL byte anywhere (UTF-16 text included, with or without its byte order
+    mark, named as such), or more than
     :data:`_BINARY_SHARE` of the first 64 kB in control bytes and bytes that are not UTF-8.
     Otherwise bytes that are not UTF-8 (a comment in Latin-1) become U+FFFD and the reader
     judges the text line by line (only a comment may hold them).
@@ -258,7 +271,7 @@ def program_text(data: bytes, name: str) -> str:
         ``"NAME is not a text G-code file (binary data at byte N)"``, N the first byte
         that is no text (counted from 0).
     """
-    if data[:2] in (b"\xff\xfe", b"\xfe\xff"):
+    if data[:2] in (b"\xff\xfe", b"\xfe\xff") or _utf16_without_bom(data[:4096]):
         raise GCodeError(f"{name} is UTF-16 text, not a G-code file the machine reads: save it as ASCII or UTF-8")
     head = data[:65536]
     bad = len(_CONTROL.findall(head)) + head.decode("utf-8", errors="replace").count("\ufffd")

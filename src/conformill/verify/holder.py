@@ -59,7 +59,7 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
-from conformill.errors import ConformillError
+from conformill.errors import ConformillError, PlanningError
 from conformill.verify.gcode import Program
 
 __all__ = ["HolderCheck", "holder_clearance"]
@@ -474,17 +474,19 @@ def _lowest_tip(a, b, p, R: float) -> np.ndarray:
 
 
 def check_holder(radius, stick_out=None, tool_radius=None) -> None:
-    """Refuse a holder radius or stick-out that is not a positive finite number, or a holder
-    not wider than the tool (bad input: exit code 2)."""
+    """Refuse a holder radius or stick-out that is not a positive finite number (bad input:
+    exit code 2), or a holder not wider than the tool (two well-formed values that cannot
+    be checked together: :class:`PlanningError`, exit code 3, as a blend above the tool
+    radius)."""
     for name, v in (("holder radius", radius), ("stick-out", stick_out)):
         if v is None:
             continue
         if not _positive_mm(v):
             raise ConformillError(f"the {name} must be a positive number of mm, got {v!r}")
     if radius is not None and tool_radius is not None and radius <= tool_radius:
-        raise ConformillError(f"the holder radius ({radius:g} mm) must be larger than the tool radius "
-                              f"({tool_radius:g} mm): up to the holder the tool is the ball and its shank of the "
-                              f"ball's radius, which this check does not model")
+        raise PlanningError(f"the holder radius ({radius:g} mm) must be larger than the tool radius "
+                            f"({tool_radius:g} mm): up to the holder the tool is the ball and its shank of the "
+                            f"ball's radius, which this check does not model")
 
 
 def _ring(V, F, A, B, radius: float, stick_out, climb: float, cell):

@@ -300,6 +300,8 @@ PROGRAM = b"G21 G90\nG0 X0 Y0 Z5\nG1 Z0 F100\nG1 X1\nM30\n"
     (PROGRAM + b"\x00\x00junk", len(PROGRAM)),  # text, then a NUL
     (b"G21\n" + bytes(range(0x80, 0x100)) * 40, 4),  # mostly not UTF-8, no NUL
     (b"G21\n" + b"\x01\x02\x03 G1" * 100, 4),  # mostly control bytes
+    (np.random.default_rng(0).integers(1, 256, 3000).astype("<u2").tobytes(), 0),  # 16-bit data: NUL high bytes
+    (np.random.default_rng(0).integers(1, 256, 3000).astype(">u2").tobytes(), 0),
 ])
 def test_a_binary_file_is_named_as_such(tmp_path, data, at):
     f = tmp_path / "prog.nc"

@@ -269,6 +269,11 @@ def test_a_holder_not_wider_than_the_tool_exits_3(dome, tmp_path, capsys):
     assert main(args) == 3
     assert "must be larger than the tool radius" in capsys.readouterr().err
     assert not (tmp_path / "v.json").exists()
+    # with a malformed value beside it, that one is reported (exit 2), from either command
+    assert _plan(dome, tmp_path, "--holder-radius", "2", "--holder-step", "20@0") == 2
+    assert main(args[:-2] + ["--report", str(tmp_path / "v.json"), "--stick-out", "-1"]) == 2
+    assert main(args[:2] + [str(tmp_path / "missing.nc")] + args[3:]) == 2
+    assert "does not exist" in capsys.readouterr().err
 
 
 def test_verify_holder_pass_and_fail(dome, tmp_path, capsys):

@@ -195,4 +195,7 @@ def test_pick_faces_is_searchsorted():
         x = np.concatenate([rng.random(4000) * cum[-1], cum, np.nextafter(cum, -np.inf), [0.0, cum[-1]]])
         np.testing.assert_array_equal(pick_faces(cum, x), np.searchsorted(cum, x, side="right"))
     np.testing.assert_array_equal(pick_faces(np.zeros(3), np.array([0.0, 1.0])), [3, 3])
+    # a total that overflows, values that are not numbers: as searchsorted
+    for cum, x in ((np.array([1.0, np.inf]), np.array([0.5, 2.0])), (np.array([1.0, 2.0]), np.array([np.nan, 1.0]))):
+        np.testing.assert_array_equal(pick_faces(cum, x), np.searchsorted(cum, x, side="right"))
     assert pick_faces(np.ones(4), np.zeros(0)).shape == (0,)

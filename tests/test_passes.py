@@ -59,13 +59,15 @@ def record_plan(part, job):
     return res, seen
 
 
-def _builder(seen, threaded, batch, link_max=None, make_cutter=None, first_batch=None):
-    """A PassBuilder with the recorded plan's settings (``link_max``, the cutter and the
-    first batch replaced where given), no piece handed over yet."""
+def _builder(seen, threaded, batch, link_max=None, make_cutter=None, first_batch=None, hop_lift=0.0):
+    """A PassBuilder with the recorded plan's settings (``link_max``, the cutter, the first
+    batch and the hop limit replaced where given), no piece handed over yet."""
     args = list(seen["args"])
     if link_max is not None:
         args[4] = link_max
     kw = {} if first_batch is None else {"first_batch": first_batch}
+    if hop_lift:
+        kw["hop_lift"] = hop_lift
     return PassBuilder(make_cutter or seen["make_cutter"], *args[:5], threaded=threaded, batch=batch,
                        settle_tol=seen["kw"]["settle_tol"], **kw)
 
@@ -176,26 +178,64 @@ def test_progress_reported_while_the_worker_cuts(recorded):
     assert ids == ids_plain and all(np.array_equal(a, c) for a, c in zip(passes, plain))
 
 
-@pytest.mark.parametrize("link_max", [None, 1e-6])
-def test_passes_so_far_are_the_first_passes(recorded, link_max):
+@pytest.mark.parametrize("link_max, hop_lift", [(None, 0.0), (1e-6, 0.0), (None, 0.01)])
+def test_passes_so_far_are_the_first_passes(recorded, link_max, hop_lift):
     # what the pencil's filter reads while the cutter works: the first passes finish()
-    # returns, the last one possibly only its first points (the pass being cut)
+    # returns, the last one possibly only its first points (the pass being cut); with
+    # retracts (a pass per path) and with hops (a pass split into runs)
     _, seen = recorded
     pieces = seen["pieces"]
-    for k in (0, 1, len(pieces) // 3, len(pieces) - 1, len(pieces)):
-        b = _builder(seen, False, 7, link_max=link_max)
+    partial = 0
+    for k in (0, 1, len(pieces) // 3, len(pieces) // 2, len(pieces) - 1, len(pieces)):
+        b = _builder(seen, False, 7, link_max=link_max, hop_lift=hop_lift)
         for pc in pieces[:k]:
             b._take(pc)  # as the worker does
         early = b.passes_so_far()
         for pc in pieces[k:]:
             b.add(pc)
         passes = b.finish()[0]
-        assert len(early) <= len(passes)
+        assert len(early) <= len(passes) and (early == [] if k == 0 else k < len(pieces) // 3 or early)
         for i, e in enumerate(early):
             full = passes[i]
             assert np.array_equal(e, full if i < len(early) - 1 else full[:len(e)])
-        if k == 0:
-            assert early == []
+        partial += bool(early) and len(early[-1]) < len(passes[len(early) - 1])
+        if hop_lift:
+            assert b.n_hops > 0
+    if link_max is None:  # one long pass: read in part (with a retract after each path, whole)
+        assert partial >= 2
+
+
+def test_the_cutter_s_error_wins_over_the_wait_for_the_pencil(monkeypatch):
+    # with --pencil-left the plan waits for the pencil's search while the cutter works: a
+    # cutter that fails after the pattern stage (here: building its index) is the error
+    # reported, not the search's "no cutter" RuntimeError (a traceback from the CLI)
+    if not threads_can_overlap():
+        pytest.skip("numba's threading layer here does not allow two threads")
+    import threading
+
+    import conformill.cutter as cutter_mod
+    import conformill.patterns.zigzag as zigzag
+
+    done = threading.Event()
+    real_plan, real_cutter = zigzag.plan_zigzag, cutter_mod.BallCutter
+
+    def plan_then_say(*a, **kw):
+        out = real_plan(*a, **kw)
+        done.set()
+        return out
+
+    def cutter(*a, **kw):
+        if threading.current_thread().name == "conformill-cutter":
+            done.wait(60)
+            raise PlanningError("cutter index: a failure made on purpose")
+        return real_cutter(*a, **kw)
+
+    monkeypatch.setattr(zigzag, "plan_zigzag", plan_then_say)
+    monkeypatch.setattr(cutter_mod, "BallCutter", cutter)
+    part = synthetic.freeform_patch(spacing=2.0, jitter=0.3, seed=2)
+    with pytest.raises(PlanningError, match="a failure made on purpose"):
+        plan(part, Job(pattern="zigzag", tool_radius=R, scallop=0.05, tolerance=0.01, pencil=True,
+                       pencil_search="folds", pencil_left=0.5))
 
 
 def test_retracts_split_passes_the_same_way_in_batches(recorded):

@@ -13,7 +13,8 @@ Which job checks give which code:
   chord tolerance or max-step below the program's 1e-4 mm resolution, a safe height beyond
   1e6 mm), an unknown word, a feed written ``F0``, a spindle below 1 rpm, options that need
   another (``pencil-left`` without the fold pencil), a tool radius (plus a stock) more than
-  100 times the part's size (a mistake of units). The same mistake gets 2 from every
+  100 times the part's size (a mistake of units), a holder step no wider than the part of
+  the holder below it (the holder described wrongly). The same mistake gets 2 from every
   command.
 - 3 (:class:`PlanningError`): well-formed values that cannot be met together or on this
   part: a scallop at or above the tool radius, a blend larger than the tool radius, a

@@ -207,6 +207,11 @@ class PassBuilder:
         except PlanningError:  # the worker meets it too, and raises it from finish()
             return None
 
+    def check(self) -> None:
+        """Raise what the worker raised, if it failed (call it while waiting on other work,
+        so that the cutter's own error is the one reported)."""
+        self._raise()
+
     def fraction_cut(self) -> float:
         """Share of the pieces handed over so far whose CC points are cut, by their dense
         samples (0 to 1; 1 when nothing was handed over)."""

@@ -396,7 +396,7 @@ def _stats(x):
 #: :func:`_check_size` is more than ten times too large to finish.
 _BYTES_PER_FEED_M = 1.0e6
 #: Memory per dense sample of the paths (bytes): at least this. The planner samples the
-#: paths every ``min(median edge, flat side step / 3)``, and the samples are kept until the
+#: paths every ``min(median edge, flat side step / 3, max-step)``, and the samples are kept until the
 #: program is written, so at a tiny scallop they decide the memory: a 40 mm dome at h = 1e-5
 #: (r = 2, a 4 um sample spacing, 26.6M samples over 112 m of feed) peaked at 10.6 GB, 400
 #: bytes each (session 43; at h = 1e-9 the same dome was killed by the OS with 24 GB).
@@ -446,7 +446,7 @@ def _check_size(mesh: Mesh, area: float, flat_ls: float, memory: float | None = 
             f"the part is {ext[0]:.4g} x {ext[1]:.4g} x {ext[2]:.4g} mm with {area / 1e6:.4g} m^2 of surface: at a "
             f"flat side step of {flat_ls:.3g} mm its program would be at least {feed_m / 1000:.4g} km of feed, "
             f"needing at least {feed_m * per_m / 2**30:.3g} GB to plan, more than the {memory / 2**30:.1f} GB of "
-            f"memory here; check the units (--scale) and the scallop")
+            f"memory here; check the units (--scale), the scallop and the max-step")
 
 
 def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
@@ -618,20 +618,35 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
                 background.link_from(end, e, link_max)
         say("cutter", builder.fraction_cut())
         left = None
+        shown = ["cutter"]  # the stage the progress shows while the search is waited for
         if background is not None and filtered:
             from conformill.pencil import LeftToCut
 
             # the pencil's filter reads the passes cut so far while the cutter works on
             # the rest, then only the rest (the same centres kept as from all at once)
+            def waiting(f):  # the cutter's own error first, as soon as it fails
+                builder.check()
+                cut = builder.fraction_cut()
+                if cut < 1.0:
+                    say("cutter", cut)
+                else:  # all cut: the search is what the plan waits for
+                    shown[0] = "pencil"
+                    say("pencil", 0.8 * f)
+
             with timer("pencil"):
-                found = background.result(wait=lambda f: say("cutter", builder.fraction_cut()))
+                try:
+                    found = background.result(wait=waiting)
+                except BaseException:
+                    builder.check()  # a worker that failed left the search without a cutter
+                    raise
                 timer.t["pencil_busy"] = background.busy_s
                 with timer("pencil_left"):
                     left = LeftToCut(found, r_cut, job.pencil_left * h)
                     early = builder.passes_so_far()
                     left.add(early)
         t_wait = time.perf_counter()
-        passes, pass_ids, lifts, hops = builder.finish(progress=lambda f: say("cutter", f))
+        passes, pass_ids, lifts, hops = builder.finish(
+            progress=(lambda f: say("cutter", f)) if shown[0] == "cutter" else None)
         t_wait = time.perf_counter() - t_wait
         # forward and cutter: busy time (beside the pattern stage when threaded; then
         # cutter_wait is how long the plan waited for the cutter after the last path)

@@ -186,9 +186,9 @@ def run(args) -> int:
     check_job(job)
     if (args.stick_out is not None or args.holder_step) and args.holder_radius is None:
         raise ConformillError("--stick-out and --holder-step need --holder-radius (the holder's face)")
-    from conformill.verify.holder import check_holder, check_steps
+    from conformill.verify.holder import check_holder, check_holder_fits, check_steps
 
-    check_holder(args.holder_radius, args.stick_out, job.tool_radius)
+    check_holder(args.holder_radius, args.stick_out)
     check_steps(args.holder_step, args.holder_radius)
     if args.replan < 0:
         raise ConformillError(f"--replan must be 0 or more, got {args.replan}")
@@ -199,6 +199,7 @@ def run(args) -> int:
     judge_h = job.scallop if args.verify_scallop is None else float(args.verify_scallop)
     if not (judge_h > 0 and judge_h < float("inf")):
         raise ConformillError(f"--verify-scallop must be a positive number, got {args.verify_scallop}")
+    check_holder_fits(args.holder_radius, job.tool_radius)  # exit 3: after the checks of single values
     from conformill import warm
 
     # on a first run a second process compiles the later stages' kernels (not with --threads 1)

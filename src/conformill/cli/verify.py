@@ -224,7 +224,7 @@ def holder_failure(h: dict) -> str:
 
 def run(args) -> int:
     from conformill.output.atomic import check_writable
-    from conformill.verify.holder import check_holder, check_steps
+    from conformill.verify.holder import check_holder, check_holder_fits, check_steps
 
     _positive("--tool-radius", args.tool_radius)
     _positive("--scallop", args.scallop, allow_zero=True)
@@ -239,13 +239,14 @@ def run(args) -> int:
         raise ConformillError(f"--samples must be >= 1, got {args.samples}")
     if (args.stick_out is not None or args.holder_step) and args.holder_radius is None:
         raise ConformillError("--stick-out and --holder-step need --holder-radius (the holder's face)")
-    check_holder(args.holder_radius, args.stick_out, args.tool_radius)
+    check_holder(args.holder_radius, args.stick_out)
     check_steps(args.holder_step, args.holder_radius)
     if args.rest and args.scallop is None:
         raise ConformillError("--rest needs --scallop (the rest is searched where more than H is left)")
     check_writable(args.report, args.plot, inputs=(args.mesh, None if args.program == "-" else args.program))
     if args.program != "-" and (not Path(args.program).exists() or Path(args.program).is_dir()):
         raise ConformillError(f"G-code file {args.program} does not exist (or is a folder)")
+    check_holder_fits(args.holder_radius, args.tool_radius)  # exit 3: after the checks of single values
     from conformill import warm
 
     # on a first run a second process compiles the kernels of the cutter (the reachable judge's

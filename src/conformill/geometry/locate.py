@@ -273,6 +273,9 @@ def _pick(cum, x, scale):
     out = np.empty(x.shape[0], dtype=np.int64)
     for k in range(x.shape[0]):
         xk = x[k]
+        if not xk == xk:  # NaN sorts last, as in searchsorted
+            out[k] = m
+            continue
         b = min(max(int(xk * scale), 0), m - 1)  # a guess: rounding is mended below
         i = start[b]
         while i > 0 and cum[i - 1] > xk:
@@ -297,7 +300,7 @@ def pick_faces(cum: np.ndarray, x: np.ndarray) -> np.ndarray:
     cum : (m,) float64
         Non-decreasing, ``cum[-1] > 0``.
     x : (k,) float64
-        Finite.
+        (Anything else, or a total that is not finite: ``np.searchsorted`` itself.)
 
     Returns
     -------
@@ -306,8 +309,8 @@ def pick_faces(cum: np.ndarray, x: np.ndarray) -> np.ndarray:
     """
     cum = np.ascontiguousarray(cum, dtype=np.float64)
     x = np.ascontiguousarray(x, dtype=np.float64)
-    if len(cum) == 0 or not cum[-1] > 0:
-        return np.searchsorted(cum, x, side="right")
+    if len(cum) == 0 or not (cum[-1] > 0 and np.isfinite(cum[-1])) or not np.isfinite(x).all():
+        return np.searchsorted(cum, x, side="right")  # (areas that overflow; values that are not numbers)
     return _pick(cum, x, len(cum) / float(cum[-1]))
 
 

@@ -235,13 +235,15 @@ _BINARY_SHARE = 0.1
 
 
 def _utf16_without_bom(head: bytes) -> bool:
-    """Whether ``head`` reads as UTF-16 text of ASCII characters: every other byte NUL
-    (the high bytes), none of the others (at least four characters, all but 2 % so)."""
+    """Whether ``head`` reads as UTF-16 text of Latin-1 characters: every other byte NUL
+    (the high bytes; all but 2 %), the others text (no NUL, no control byte but tab and the
+    line ends), at least four characters. 16-bit binary data has control bytes among its
+    low bytes."""
     head = head[:len(head) // 2 * 2]
     if len(head) < 8:
         return False
     for lo, hi in ((head[0::2], head[1::2]), (head[1::2], head[0::2])):  # little-, big-endian
-        if hi.count(0) >= 0.98 * len(hi) and lo.count(0) == 0:
+        if hi.count(0) >= 0.98 * len(hi) and lo.count(0) == 0 and not _CONTROL.search(lo):
             return True
     return False
 
@@ -269,7 +271,7 @@ def program_text(data: bytes, name: str) -> str:
     ------
     GCodeError
         ``"NAME is not a text G-code file (binary data at byte N)"``, N the first byte
-        that is no text (counted from 0).
+        that is no text (counted from 0); ``"NAME is UTF-16 text, ..."`` for UTF-16.
     """
     if data[:2] in (b"\xff\xfe", b"\xfe\xff") or _utf16_without_bom(data[:4096]):
         raise GCodeError(f"{name} is UTF-16 text, not a G-code file the machine reads: save it as ASCII or UTF-8")

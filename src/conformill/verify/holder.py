@@ -473,16 +473,22 @@ def _lowest_tip(a, b, p, R: float) -> np.ndarray:
     return t0 if t0[2] <= t1[2] else t1
 
 
-def check_holder(radius, stick_out=None, tool_radius=None) -> None:
+def check_holder(radius, stick_out=None) -> None:
     """Refuse a holder radius or stick-out that is not a positive finite number (bad input:
-    exit code 2), or a holder not wider than the tool (two well-formed values that cannot
-    be checked together: :class:`PlanningError`, exit code 3, as a blend above the tool
-    radius)."""
+    exit code 2)."""
     for name, v in (("holder radius", radius), ("stick-out", stick_out)):
         if v is None:
             continue
         if not _positive_mm(v):
             raise ConformillError(f"the {name} must be a positive number of mm, got {v!r}")
+
+
+def check_holder_fits(radius, tool_radius) -> None:
+    """Refuse a holder not wider than the tool: two well-formed values that cannot be
+    checked together (:class:`PlanningError`, exit code 3, as a blend above the tool
+    radius; the command lines ask it after their checks of single values, which exit 2).
+    A holder step no wider than the part below it is a holder described wrongly, and
+    :func:`check_steps` refuses it with exit code 2."""
     if radius is not None and tool_radius is not None and radius <= tool_radius:
         raise PlanningError(f"the holder radius ({radius:g} mm) must be larger than the tool radius "
                             f"({tool_radius:g} mm): up to the holder the tool is the ball and its shank of the "

@@ -379,3 +379,60 @@ def test_reachable_judge_excuses_nothing_on_a_plane():
     q = res.summary["reachable"]
     assert q["beyond_any_ball"] == 0 and q["unconfirmed"] == 0
     assert q["scallop"]["p999"] > 4 * H and not res.summary["pass"]
+
+
+class _Counting:
+    """A k-d tree that counts the points asked of its bounded queries."""
+
+    def __init__(self, tree):
+        self.tree, self.bounded = tree, 0
+
+    def query(self, X, k=1, distance_upper_bound=np.inf, workers=1):
+        if np.isfinite(distance_upper_bound):
+            self.bounded += len(X)
+        return self.tree.query(X, k=k, distance_upper_bound=distance_upper_bound, workers=workers)
+
+
+@pytest.mark.parametrize("R, blocked", [(4.2, False), (3.9, True)])
+def test_a_bowl_of_about_the_ball_s_radius_is_decided_in_groups(R, blocked):
+    # the tangent balls' centres of a spherical bowl crowd near its centre of curvature,
+    # where every point lies about R - r from them: a bounded k-d tree query then visits
+    # them all (26 s at 60k samples for R = 4.2, r = 4). One exact distance per crowded
+    # cell of depth / 2 decides its neighbours; the answers are those of the plain query
+    from scipy.spatial import cKDTree
+
+    from conformill.mesh.synthetic import sphere_cap
+    from conformill.verify.simulate import _any_within
+
+    m = sphere_cap(R=R, radius_xy=3.0, spacing=0.1, concave=True)
+    S = sample_surface(m.V, m.F, 8000, seed=0)
+    C = S.points + 4.0 * S.normals
+    tree = cKDTree(np.vstack([S.points, m.V]))
+    want = np.isfinite(tree.query(C, distance_upper_bound=3.99)[0])
+    counting = _Counting(tree)
+    got = _any_within(counting, C, 3.99, 0.01)
+    np.testing.assert_array_equal(got, want)
+    assert want.all() if blocked else not want.any()
+    assert counting.bounded < 0.25 * len(C)  # most decided by the groups' exact distances
+    assert unreachable_samples(S, m.V, 4.0, 0.01).all() == blocked
+
+
+def test_crowded_queries_near_the_reach_give_the_plain_answers():
+    # clusters of queries (tighter than depth) whose nearest points lie about rho away,
+    # some just inside, some just outside, and queries spread apart: the same booleans
+    from scipy.spatial import cKDTree
+
+    from conformill.verify.simulate import _any_within
+
+    rng = np.random.default_rng(7)
+    X = rng.normal(size=(3000, 3))
+    X *= (2.0 + rng.uniform(-0.02, 0.02, (3000, 1))) / np.linalg.norm(X, axis=1, keepdims=True)
+    crowds = np.repeat(rng.uniform(-0.01, 0.01, (40, 3)), 50, axis=0) + rng.uniform(-0.003, 0.003, (2000, 3))
+    C = np.vstack([crowds, rng.uniform(-1.0, 1.0, (500, 3))])
+    tree = cKDTree(X)
+    mixed = 0
+    for rho in (1.95, 1.965, 1.97, 1.975, 1.98, 2.0):
+        want = np.isfinite(tree.query(C, distance_upper_bound=rho)[0])
+        np.testing.assert_array_equal(_any_within(tree, C, rho, 0.01), want)
+        mixed += 0 < want[:2000].sum() < 2000
+    assert mixed >= 2

@@ -169,7 +169,7 @@ class PassBuilder:
         if self._thread is None:
             self._held.append(piece)
             return
-        self._raise()
+        self.check()
         self._queue.put(piece)
 
     def wait_cutter(self):
@@ -210,7 +210,8 @@ class PassBuilder:
     def check(self) -> None:
         """Raise what the worker raised, if it failed (call it while waiting on other work,
         so that the cutter's own error is the one reported)."""
-        self._raise()
+        if self._error is not None:
+            raise self._error
 
     def fraction_cut(self) -> float:
         """Share of the pieces handed over so far whose CC points are cut, by their dense
@@ -240,7 +241,7 @@ class PassBuilder:
                 say(self.fraction_cut())
                 self._thread.join(timeout=0.2)
             self._thread = None
-            self._raise()
+            self.check()
         say(1.0)
         passes, ids, lifts, hops = [], [], [], []
         for p in self._done:
@@ -303,10 +304,6 @@ class PassBuilder:
             self._queue.put(None)
             self._thread.join()
             self._thread = None
-
-    def _raise(self):
-        if self._error is not None:
-            raise self._error
 
     # -- the work ---------------------------------------------------------------------
     def _loop(self):

@@ -164,7 +164,6 @@ class _MoveGrid:
     """The centre moves ``A -> B`` binned on an XY grid (:func:`_bin`), as the kernels take them."""
 
     def __init__(self, A, B):
-        self.A, self.B = A, B
         if len(A) == 0:  # one empty cell
             self.args = (A, B, 0.0, 0.0, _CELL, 1, 1, np.zeros(2, dtype=np.int64), np.zeros(0, dtype=np.int32),
                          np.full(1, np.inf), np.full(1, -np.inf))

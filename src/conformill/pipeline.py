@@ -617,7 +617,7 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
             if end is not None:
                 background.link_from(end, e, link_max)
         say("cutter", builder.fraction_cut())
-        left = None
+        left, early = None, []  # the pencil's filter and the passes it read while the cutter worked
         shown = ["cutter"]  # the stage the progress shows while the search is waited for
         if background is not None and filtered:
             from conformill.pencil import LeftToCut
@@ -670,7 +670,6 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
                         found = pencil_search(cutter, *search_args, **search_kw,
                                               progress=lambda f: say("pencil", 0.8 * f))
                         left = LeftToCut(found, r_cut, job.pencil_left * h)
-                        early = []
                     with timer("pencil_left"):
                         # the moves after those already read: the rest of the last pass
                         # read in part, then the passes after it

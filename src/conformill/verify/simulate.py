@@ -944,21 +944,12 @@ def _any_within(tree, C: np.ndarray, rho: float, depth: float) -> np.ndarray:
     """
     out = np.zeros(len(C), dtype=bool)
     todo = np.arange(len(C))
-    cell = 0.5 * float(depth)
-    if len(C) >= _CROWD and cell > 0 and np.isfinite(cell):
-        k = np.floor((C - C.min(axis=0)) / cell)
-        n = k.max(axis=0) + 1
-        if float(np.prod(n)) < 2.0 ** 62:  # one integer per cell (else no groups: a part kilometres wide)
-            k = k.astype(np.int64)
-            key = (k[:, 0] * int(n[1]) + k[:, 1]) * int(n[2]) + k[:, 2]
-            _, first, inv, count = np.unique(key, return_index=True, return_inverse=True, return_counts=True)
-        else:
-            first, inv, count = np.zeros(1, dtype=np.int64), np.zeros(len(C), dtype=np.int64), np.ones(1)
-        inv = inv.reshape(-1)
-        crowd = count[inv] >= _CROWD
-        if crowd.any():
-            lead = first[inv[crowd]]  # the cell's first query decides the others
-            who = np.flatnonzero(crowd)
+    cells = _cells(C, 0.5 * float(depth)) if len(C) >= _CROWD else None
+    if cells is not None:
+        first, count = cells
+        who = np.flatnonzero(count >= _CROWD)
+        if who.size:
+            lead = first[who]  # the cell's first query decides the others
             piv = np.unique(lead)
             dp = np.empty(len(C))
             dp[piv] = tree.query(C[piv], k=1, workers=-1)[0]
@@ -973,6 +964,23 @@ def _any_within(tree, C: np.ndarray, rho: float, depth: float) -> np.ndarray:
         d, _ = tree.query(C[todo], k=1, distance_upper_bound=rho, workers=-1)
         out[todo] = np.isfinite(d)
     return out
+
+
+def _cells(C: np.ndarray, cell: float):
+    """Per point of ``C (m, 3)``: the first point (index) in its cubic cell of side ``cell``
+    and how many the cell holds; ``None`` when ``cell`` is not positive or the cells over
+    ``C``'s box outnumber an int64 key (a part kilometres wide)."""
+    if not (cell > 0 and np.isfinite(cell)):
+        return None
+    k = np.floor((C - C.min(axis=0)) / cell)
+    n = k.max(axis=0) + 1
+    if not float(np.prod(n)) < 2.0 ** 62:
+        return None
+    k = k.astype(np.int64)
+    key = (k[:, 0] * int(n[1]) + k[:, 1]) * int(n[2]) + k[:, 2]
+    _, first, inv, count = np.unique(key, return_index=True, return_inverse=True, return_counts=True)
+    inv = inv.reshape(-1)
+    return first[inv], count[inv]
 
 
 def _shank_blocked(X: np.ndarray, C: np.ndarray, rho: float, depth: float) -> np.ndarray:

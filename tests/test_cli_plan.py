@@ -247,6 +247,47 @@ def test_bad_values_exit_without_output(part, tmp_path, capsys, args, code, word
     assert not out.exists() and not (tmp_path / "r.json").exists()
 
 
+# a malformed value and a combination that cannot be met in one command: the malformed value
+# is named (exit 2), whichever comes first on the line and whichever check owns it
+@pytest.mark.parametrize("args, word", [
+    (["--tool-radius", "4", "--scallop", "5", "--stock", "inf"], "stock"),
+    (["--tool-radius", "4", "--scallop", "5", "--feed", "1e-9"], "f0"),
+    (["--tool-radius", "4", "--scallop", "5", "--verify", "--verify-samples", "0"], "samples"),
+    (["--tool-radius", "4", "--scallop", "5", "--replan", "-1"], "replan"),
+    (["--tool-radius", "4", "--scallop", "0.1", "--blend", "5", "--spindle", "nan"], "spindle"),
+    (["--tool-radius", "4", "--scallop", "0.1", "--blend", "5", "--holder-radius", "10", "--stick-out", "-1"],
+     "stick-out"),
+    (["--tool-radius", "4", "--scallop", "0.1", "--holder-radius", "2", "--verify", "--verify-scallop", "0"],
+     "verify-scallop"),
+    # the ball's size against the part's (a mistake of units) is read from the mesh
+    (["--tool-radius", "1e9", "--scallop", "1e10"], "--scale"),
+])
+def test_a_malformed_value_wins_over_one_that_cannot_be_met(part, tmp_path, capsys, args, word):
+    out = tmp_path / "p.nc"
+    rc = main(["plan", str(part), "-o", str(out), "--report", str(tmp_path / "r.json"), *args])
+    err = capsys.readouterr().err
+    assert rc == 2, err
+    assert word in err.lower() and "Traceback" not in err and len(err.strip().splitlines()) == 1
+    assert not out.exists() and not (tmp_path / "r.json").exists()
+
+
+def test_a_bad_mesh_wins_over_values_that_cannot_be_met(part, tmp_path, capsys):
+    bad = tmp_path / "bad.obj"
+    bad.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 5 5 5\nf 1 2 3\nf 1 2 4\nf 1 2 5\n")
+    out = tmp_path / "p.nc"
+    for extra in (["--scallop", "5"], ["--scallop", "0.1", "--blend", "5"], ["--scallop", "0.1", "--holder-radius", "2"]):
+        rc = main(["plan", str(bad), "--tool-radius", "4", "-o", str(out), *extra])
+        err = capsys.readouterr().err
+        assert rc == 2 and "Traceback" not in err and not out.exists(), (extra, err)
+        assert "bad.obj" in err, err
+    # the same values on a good mesh: exit 3, each named
+    for extra, word in ((["--scallop", "5"], "smaller than the tool radius"),
+                        (["--scallop", "0.1", "--blend", "5"], "larger than the tool radius"),
+                        (["--scallop", "0.1", "--holder-radius", "2"], "must be larger than the tool radius")):
+        assert main(["plan", str(part), "--tool-radius", "4", "-o", str(out), *extra]) == 3
+        assert word in capsys.readouterr().err and not out.exists()
+
+
 def test_corners_starting_with_a_dash_and_ids_not_in_the_mesh(part, tmp_path, capsys):
     # argparse reads "-1,1,2,3" as an option: the error says how to give it
     out = tmp_path / "c.nc"

@@ -274,6 +274,15 @@ def test_a_holder_not_wider_than_the_tool_exits_3(dome, tmp_path, capsys):
     assert main(args[:-2] + ["--report", str(tmp_path / "v.json"), "--stick-out", "-1"]) == 2
     assert main(args[:2] + [str(tmp_path / "missing.nc")] + args[3:]) == 2
     assert "does not exist" in capsys.readouterr().err
+    # a program or a mesh that cannot be read is input too: named before the holder (exit 2)
+    bad = tmp_path / "bad.nc"
+    bad.write_text("G21 G90\nG1 X1 Y2 Z3 F100\nG1 X Q\nM2\n")
+    assert main(args[:2] + [str(bad)] + args[3:]) == 2
+    assert "line 3" in capsys.readouterr().err
+    broken = tmp_path / "broken.obj"
+    broken.write_text("v 0 0 0\nf 1 2 3\n")
+    assert main(args[:1] + [str(broken)] + args[2:]) == 2
+    assert "broken.obj" in capsys.readouterr().err
 
 
 def test_verify_holder_pass_and_fail(dome, tmp_path, capsys):

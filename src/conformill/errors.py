@@ -21,6 +21,13 @@ Which job checks give which code:
   safe height below the part, a program too large for the memory, a parameterization with
   flipped faces, a side step that collapses or too many paths, a holder not wider than
   the tool or one that meets the part at the stick-out given.
+
+When an input holds mistakes of both kinds, exit code 2 wins for every mistake found
+before planning: ``plan`` and ``verify`` check each value on its own, then read and check
+the mesh (the program, the ball's size against the part's), and only then the values
+against each other (exit code 3). What only the work finds (rectangle corners off the
+boundary, a safe height below the part, a program too large for the memory, a side step
+that collapses) is found in the order the stages meet it.
 """
 
 from __future__ import annotations

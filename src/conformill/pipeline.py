@@ -20,7 +20,7 @@ from conformill.geometry.surface import DomainSurface
 from conformill.output.gcode import coolant_on, path_control, tool_number
 from conformill.patterns.family import Planner
 from conformill.passes import PassBuilder, threads_can_overlap
-from conformill.planning.steps import check_ball_size, check_params, check_resolution, side_interval
+from conformill.planning.steps import check_ball_size, check_meetable, check_params, check_resolution, side_interval
 from conformill.types import PENCIL_SEARCHES, Mesh, PathParams, PlanResult, ToolPath
 
 log = logging.getLogger(__name__)
@@ -234,9 +234,15 @@ _LEAST_FEED = 0.001
 _MOST_SAFE_Z = 1e6
 
 
-def check_job(job: Job) -> PathParams:
+def check_job(job: Job, together: bool = True) -> PathParams:
     """Refuse a job before any work; return its checked cutting parameters
     (:func:`conformill.planning.steps.check_params`).
+
+    Every value is checked on its own first, then (with ``together``) the values against
+    each other (:func:`check_job_together`), so that a job with a malformed value and a
+    combination that cannot be met is refused for the malformed value (exit code 2). A
+    caller with more single values of its own (the command line) passes ``together=False``
+    and calls :func:`check_job_together` after checking them.
 
     Raises
     ------
@@ -250,7 +256,7 @@ def check_job(job: Job) -> PathParams:
     """
     if job.pattern not in PATTERNS:
         raise JobValueError(f"unknown pattern {job.pattern!r}; choose one of {', '.join(PATTERNS)}")
-    params = check_params(job.tool_radius, job.scallop, job.tolerance, job.stock)
+    params = check_params(job.tool_radius, job.scallop, job.tolerance, job.stock, together=False)
     for name in ("feed", "max_step", "clearance", "rapid"):
         v = getattr(job, name)
         if not np.isfinite(v) or v <= 0:
@@ -296,11 +302,27 @@ def check_job(job: Job) -> PathParams:
         coolant_on(job.coolant)
     except PlanningError as exc:  # JobValueError: the same type, without the writer's prefix
         raise type(exc)(str(exc).replace("G-code: ", "", 1)) from None
+    if together:
+        check_job_together(job, params)
+    return params
+
+
+def check_job_together(job: Job, params: PathParams) -> None:
+    """Refuse a job whose values, each well formed (:func:`check_job` with
+    ``together=False``), cannot be met together.
+
+    Raises
+    ------
+    PlanningError
+        Exit code 3: a scallop at or above the tool radius
+        (:func:`conformill.planning.steps.check_meetable`), a blend larger than the tool
+        radius.
+    """
+    check_meetable(params)
     b = job.blend_tolerance  # None, or a number path_control took
     if b is not None and b > job.tool_radius:
         raise PlanningError(f"blend {b:g} mm is larger than the tool radius {job.tool_radius:g} mm: the controller "
                             f"could round the path's corners by more than the ball")
-    return params
 
 
 def face_normals(V: np.ndarray, F: np.ndarray):

@@ -183,10 +183,10 @@ def run(args) -> int:
               **({} if args.pencil_search is None else {"pencil_search": args.pencil_search}))
     from conformill.pipeline import check_job
 
-    check_job(job)
+    params = check_job(job, together=False)  # exit 2 first: every single value, then the combinations (exit 3)
     if (args.stick_out is not None or args.holder_step) and args.holder_radius is None:
         raise ConformillError("--stick-out and --holder-step need --holder-radius (the holder's face)")
-    from conformill.verify.holder import check_holder, check_holder_fits, check_steps
+    from conformill.verify.holder import check_holder, check_steps
 
     check_holder(args.holder_radius, args.stick_out)
     check_steps(args.holder_step, args.holder_radius)
@@ -199,30 +199,36 @@ def run(args) -> int:
     judge_h = job.scallop if args.verify_scallop is None else float(args.verify_scallop)
     if not (judge_h > 0 and judge_h < float("inf")):
         raise ConformillError(f"--verify-scallop must be a positive number, got {args.verify_scallop}")
-    check_holder_fits(args.holder_radius, job.tool_radius)  # exit 3: after the checks of single values
     from conformill import warm
 
     # on a first run a second process compiles the later stages' kernels (not with --threads 1)
     parts = ("cutter",) + (("verify",) if args.verify else ()) + (
         ("holder",) if args.holder_radius is not None else ())
     with warm.beside(parts):
-        return _run_job(args, job, judge_h)
+        return _run_job(args, job, params, judge_h)
 
 
-def _run_job(args, job, judge_h: float) -> int:
-    """Read, plan, write and check: :func:`run` once the arguments are checked. With
-    ``--replan N``, plan, write and verify again for a smaller scallop (:func:`replan_scallop`)
-    while the check fails on the scallop alone, at most N more times."""
+def _run_job(args, job, params, judge_h: float) -> int:
+    """Read, plan, write and check: :func:`run` once the arguments are checked one by one.
+    The mesh is read and checked (exit 2) before the values are checked together (exit 3),
+    so that any malformed input is named first. With ``--replan N``, plan, write and verify
+    again for a smaller scallop (:func:`replan_scallop`) while the check fails on the
+    scallop alone, at most N more times."""
     from conformill.mesh.io import read_mesh
     from conformill.output.atomic import all_or_nothing
     from conformill.output.gcode import write_gcode
     from conformill.output.report import write_json
-    from conformill.pipeline import plan, with_overrides
+    from conformill.pipeline import check_job_together, plan, with_overrides
+    from conformill.planning.steps import check_ball_size
+    from conformill.verify.holder import check_holder_fits
 
     t0 = time.perf_counter()
     t = time.perf_counter()
     mesh = read_mesh(args.mesh, scale=args.scale)
     t_read = time.perf_counter() - t
+    check_ball_size(params.tool_radius, mesh.V, stock=params.stock)  # exit 2, as plan() asks it
+    check_job_together(job, params)  # exit 3: after every check of single values and of the mesh
+    check_holder_fits(args.holder_radius, job.tool_radius)
     rounds = []  # --replan: one entry per plan
     once = WarnOnce() if args.replan else None  # the same mesh warns the same on every plan: once is enough
     with all_or_nothing(args.output, args.report, args.plot, args.html):

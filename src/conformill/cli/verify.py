@@ -224,7 +224,7 @@ def holder_failure(h: dict) -> str:
 
 def run(args) -> int:
     from conformill.output.atomic import check_writable
-    from conformill.verify.holder import check_holder, check_holder_fits, check_steps
+    from conformill.verify.holder import check_holder, check_steps
 
     _positive("--tool-radius", args.tool_radius)
     _positive("--scallop", args.scallop, allow_zero=True)
@@ -246,7 +246,6 @@ def run(args) -> int:
     check_writable(args.report, args.plot, inputs=(args.mesh, None if args.program == "-" else args.program))
     if args.program != "-" and (not Path(args.program).exists() or Path(args.program).is_dir()):
         raise ConformillError(f"G-code file {args.program} does not exist (or is a folder)")
-    check_holder_fits(args.holder_radius, args.tool_radius)  # exit 3: after the checks of single values
     from conformill import warm
 
     # on a first run a second process compiles the kernels of the cutter (the reachable judge's
@@ -275,6 +274,9 @@ def _check(args) -> int:
     else:
         source = Path(args.program)
     program = read_gcode(source, chord_tol=args.chord_tol)
+    from conformill.verify.holder import check_holder_fits
+
+    check_holder_fits(args.holder_radius, args.tool_radius)  # exit 3: after every check of input (exit 2)
     quiet = getattr(args, "quiet", False)
     with sample_bar(args.samples, "simulating", enabled=not quiet) as update:
         res = verify(mesh, program, args.tool_radius, n_samples=args.samples, seed=args.seed,

@@ -94,7 +94,7 @@ def _positive(name: str, value) -> float:
     return x
 
 
-def check_params(tool_radius, scallop, tolerance, stock=0.0) -> PathParams:
+def check_params(tool_radius, scallop, tolerance, stock=0.0, *, together: bool = True) -> PathParams:
     """Validate cutting parameters (ball radius ``r``, scallop ``h``, chord tolerance ``e``,
     stock ``s`` left on the part).
 
@@ -105,6 +105,10 @@ def check_params(tool_radius, scallop, tolerance, stock=0.0) -> PathParams:
     stock : float
         Millimetres, ``s > -r``: the surface the ball finishes is the part offset by ``s``
         along its normal (negative: into the part).
+    together : bool
+        Also check the values against each other (:func:`check_meetable`, exit code 3);
+        False checks each value on its own (exit code 2), for a caller that has more
+        single values to check first.
 
     Returns
     -------
@@ -117,16 +121,31 @@ def check_params(tool_radius, scallop, tolerance, stock=0.0) -> PathParams:
         A value is not a finite positive number, or below :data:`RESOLUTION`, or the stock
         is not a finite number above ``-r`` (exit code 2: malformed values).
     PlanningError
-        ``scallop >= tool_radius``: a ball of radius ``r`` cannot leave a cusp of ``r`` or
-        more between touching passes (exit code 3: a plan that cannot be met).
+        With ``together``: :func:`check_meetable`. Raised only once every value passed on
+        its own, so a malformed value is named first (exit code 2).
     """
     r = _positive("tool radius", tool_radius)
     h = _positive("scallop height", scallop)
     e = _positive("chord tolerance", tolerance)
-    if h >= r:
-        raise PlanningError(f"scallop height {h:g} mm must be smaller than the tool radius {r:g} mm")
     s = check_stock(stock, r)
-    return PathParams(tool_radius=r, scallop=h, tolerance=e, stock=s)
+    params = PathParams(tool_radius=r, scallop=h, tolerance=e, stock=s)
+    if together:
+        check_meetable(params)
+    return params
+
+
+def check_meetable(params: PathParams) -> None:
+    """Refuse checked parameters that cannot be met together.
+
+    Raises
+    ------
+    PlanningError
+        ``scallop >= tool_radius``: a ball of radius ``r`` cannot leave a cusp of ``r`` or
+        more between touching passes (exit code 3: a plan that cannot be met).
+    """
+    if params.scallop >= params.tool_radius:
+        raise PlanningError(f"scallop height {params.scallop:g} mm must be smaller than the tool radius "
+                            f"{params.tool_radius:g} mm")
 
 
 def check_stock(stock, tool_radius: float | None, error: type[Exception] = JobValueError,
@@ -642,6 +661,7 @@ def polar_forward_step(l_f, E, F, G, theta, rho):
 
 __all__ = [
     "allowed_across",
+    "check_meetable",
     "check_params",
     "side_interval_stock",
     "check_stock",

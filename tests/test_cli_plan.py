@@ -4,7 +4,10 @@ from __future__ import annotations
 
 import json
 import shutil
+import subprocess
+import sys
 
+import numpy as np
 import pytest
 import trimesh
 
@@ -261,6 +264,12 @@ def test_bad_values_exit_without_output(part, tmp_path, capsys, args, code, word
      "verify-scallop"),
     # the ball's size against the part's (a mistake of units) is read from the mesh
     (["--tool-radius", "1e9", "--scallop", "1e10"], "--scale"),
+    # corners that name no four vertices of the mesh (their place on the boundary needs the map)
+    (["--pattern", "zigzag", "--tool-radius", "4", "--scallop", "5", "--corners", "1,1,2,3"], "distinct"),
+    (["--pattern", "zigzag", "--tool-radius", "4", "--scallop", "0.1", "--corners=-1,1,2,3", "--blend", "5"],
+     "not in the mesh"),
+    (["--pattern", "zigzag", "--tool-radius", "4", "--scallop", "0.1", "--corners", "0,1,2,999999",
+      "--holder-radius", "3"], "not in the mesh"),
 ])
 def test_a_malformed_value_wins_over_one_that_cannot_be_met(part, tmp_path, capsys, args, word):
     out = tmp_path / "p.nc"
@@ -286,6 +295,28 @@ def test_a_bad_mesh_wins_over_values_that_cannot_be_met(part, tmp_path, capsys):
                         (["--scallop", "0.1", "--holder-radius", "2"], "must be larger than the tool radius")):
         assert main(["plan", str(part), "--tool-radius", "4", "-o", str(out), *extra]) == 3
         assert word in capsys.readouterr().err and not out.exists()
+
+
+def test_a_refusal_after_a_read_that_warned_is_one_line(part, tmp_path):
+    # the read's warnings wait for the checks: printed when they pass, dropped on a refusal
+    m = trimesh.load(part, process=False)
+    loose = tmp_path / "loose.obj"
+    V = np.vstack([m.vertices, [[500.0, 500.0, 500.0]]])
+    loose.write_text("".join(f"v {float(x)!r} {float(y)!r} {float(z)!r}\n" for x, y, z in V)
+                     + "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in m.faces))
+    out = tmp_path / "p.nc"
+
+    def run(*extra):
+        return subprocess.run([sys.executable, "-m", "conformill", "plan", str(loose), "--tool-radius", "4",
+                               "-o", str(out), "-q", *extra], capture_output=True, text=True, timeout=600)
+
+    for extra in (["--scallop", "5"], ["--scallop", "0.3", "--blend", "5"], ["--scallop", "0.3", "--holder-radius", "3"]):
+        p = run(*extra)
+        assert p.returncode == 3 and len(p.stderr.strip().splitlines()) == 1, (extra, p.stderr)
+        assert "larger than the tool radius" in p.stderr or "smaller than the tool radius" in p.stderr
+        assert not out.exists()
+    p = run("--scallop", "0.3")
+    assert p.returncode == 0 and "dropped 1 unreferenced vertices" in p.stderr and out.exists()
 
 
 def test_corners_starting_with_a_dash_and_ids_not_in_the_mesh(part, tmp_path, capsys):

@@ -6,7 +6,7 @@ import io
 import logging
 
 from conformill.cli import progress as progress_mod
-from conformill.cli.progress import StageProgress, log_above_bars
+from conformill.cli.progress import StageProgress, held_back, log_above_bars
 
 
 class _Tty(io.StringIO):
@@ -111,3 +111,32 @@ def test_no_redirect_without_a_console_handler(monkeypatch):
     finally:
         root.handlers = saved
     assert "only to the file" in to_file.stream.getvalue() and tty.getvalue() == ""
+
+
+def test_held_back_prints_after_the_block_or_not_at_all():
+    out = io.StringIO()
+    hd = logging.StreamHandler(out)
+    hd.setLevel(logging.WARNING)
+    root = logging.getLogger()
+    root.addHandler(hd)
+    log = logging.getLogger("conformill.test_held")
+    try:
+        with held_back():
+            log.warning("first")
+            log.info("below the handler's level")
+            assert out.getvalue() == ""  # held while the block runs
+            log.warning("second")
+        assert out.getvalue() == "first\nsecond\n"  # then printed once each, in order
+        out.truncate(0)
+        out.seek(0)
+        try:
+            with held_back():
+                log.warning("dropped")
+                raise ValueError("refused")
+        except ValueError:
+            pass
+        log.warning("after")
+        assert out.getvalue() == "after\n"  # the refusal's block printed nothing; the filter is gone
+        assert not hd.filters
+    finally:
+        root.removeHandler(hd)

@@ -279,6 +279,10 @@ def test_a_holder_not_wider_than_the_tool_exits_3(dome, tmp_path, capsys):
     bad.write_text("G21 G90\nG1 X1 Y2 Z3 F100\nG1 X Q\nM2\n")
     assert main(args[:2] + [str(bad)] + args[3:]) == 2
     assert "line 3" in capsys.readouterr().err
+    for text in ("", "G21 G90\nM2\n", "G21 G90\nG0 Z30\nG0 X0 Y0\nM2\n"):  # a program that cuts nothing
+        bad.write_text(text)
+        assert main(args[:2] + [str(bad)] + args[3:]) == 2
+        assert "no feed moves" in capsys.readouterr().err
     broken = tmp_path / "broken.obj"
     broken.write_text("v 0 0 0\nf 1 2 3\n")
     assert main(args[:1] + [str(broken)] + args[2:]) == 2

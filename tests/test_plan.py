@@ -5,7 +5,7 @@ import logging
 import numpy as np
 import pytest
 
-from conformill.errors import JobValueError, PlanningError
+from conformill.errors import JobValueError, ParameterizationError, PlanningError
 from conformill.mesh import synthetic
 from conformill.pipeline import Job, plan, with_overrides
 
@@ -129,6 +129,22 @@ def test_bad_job_values_are_refused(kw, word, code):
     with pytest.raises(PlanningError, match=word) as ei:
         plan(part, Job(**{**dict(tool_radius=R_TOOL, scallop=H), **kw}))
     assert ei.value.exit_code == code and isinstance(ei.value, JobValueError) == (code == 2)
+
+
+@pytest.mark.parametrize("kw, error, word", [
+    (dict(tool_radius=1e9, scallop=1e10), JobValueError, "more than 100 times"),
+    (dict(scallop=2 * R_TOOL, stock=float("inf")), JobValueError, "stock"),
+    (dict(blend=2 * R_TOOL, feed=0.0), JobValueError, "feed"),
+    (dict(pattern="zigzag", corners=(0, 1, 2, 10**6), scallop=2 * R_TOOL), ParameterizationError, "not in the mesh"),
+    (dict(pattern="zigzag", corners=(0, 1, 1, 2), blend=2 * R_TOOL), ParameterizationError, "distinct"),
+])
+def test_a_malformed_value_is_named_before_values_that_cannot_be_met(kw, error, word):
+    # the library refuses in the command line's order: every value on its own, the ball's size
+    # and the corners against the mesh (exit code 2), then the values together (3)
+    part = synthetic.plane(size=10, spacing=2)
+    with pytest.raises(error, match=word) as ei:
+        plan(part, Job(**{**dict(tool_radius=R_TOOL, scallop=H), **kw}))
+    assert ei.value.exit_code == 2
 
 
 def test_safe_z_below_part_is_refused():

@@ -491,21 +491,29 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
     JobValueError
         Malformed job values (:func:`check_job`), a ball far larger than the part
         (:func:`conformill.planning.steps.check_ball_size`); exit code 2.
+    ParameterizationError
+        Corners that are not four distinct vertex ids of the mesh
+        (:func:`conformill.param.boundary.check_corner_ids`), or not on its boundary in
+        order; exit code 2.
     PlanningError
-        A job that cannot be met (exit code 3): a scallop at or above the tool radius, a
-        side step that collapses, a safe height below the part, a part whose program
+        A job that cannot be met (exit code 3), refused after the checks above: a scallop
+        at or above the tool radius, a blend larger than it, a side step that collapses, a safe height below the part, a part whose program
         could not fit in this machine's memory (wrong units).
     """
     from conformill.cutter import BallCutter
     from conformill.param import parameterize
+    from conformill.param.boundary import check_corner_ids
     from conformill.param.quality import quality
     from conformill.patterns.contour import plan_contour
     from conformill.patterns.domains import BoundaryPolygon
     from conformill.patterns.spiral import plan_spiral
     from conformill.patterns.zigzag import plan_zigzag
 
-    params = check_job(job)
+    params = check_job(job, together=False)
     check_ball_size(params.tool_radius, mesh.V, stock=params.stock)
+    if job.corners is not None:  # four ids of the mesh; their place on the boundary is checked with the map
+        check_corner_ids(job.corners, mesh.n_vertices)
+    check_job_together(job, params)  # exit 3 after the checks of single values, the ball's size and the corners
     timer = _Timer()
     r, h, e, stock = params.tool_radius, params.scallop, params.tolerance, params.stock
     # the cutter places the centres of a ball of radius r + stock on the part: the ball of

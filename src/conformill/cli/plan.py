@@ -6,7 +6,7 @@ import argparse
 import sys
 import time
 
-from conformill.cli.progress import StageProgress, WarnOnce, printed_through, sample_bar
+from conformill.cli.progress import StageProgress, WarnOnce, held_back, printed_through, sample_bar
 from conformill.errors import ConformillError, PlanningError
 
 
@@ -218,17 +218,21 @@ def _run_job(args, job, params, judge_h: float) -> int:
     from conformill.output.atomic import all_or_nothing
     from conformill.output.gcode import write_gcode
     from conformill.output.report import write_json
+    from conformill.param.boundary import check_corner_ids
     from conformill.pipeline import check_job_together, plan, with_overrides
     from conformill.planning.steps import check_ball_size
     from conformill.verify.holder import check_holder_fits
 
     t0 = time.perf_counter()
-    t = time.perf_counter()
-    mesh = read_mesh(args.mesh, scale=args.scale)
-    t_read = time.perf_counter() - t
-    check_ball_size(params.tool_radius, mesh.V, stock=params.stock)  # exit 2, as plan() asks it
-    check_job_together(job, params)  # exit 3: after every check of single values and of the mesh
-    check_holder_fits(args.holder_radius, job.tool_radius)
+    with held_back():  # the read's warnings are printed once the checks pass
+        t = time.perf_counter()
+        mesh = read_mesh(args.mesh, scale=args.scale)
+        t_read = time.perf_counter() - t
+        check_ball_size(params.tool_radius, mesh.V, stock=params.stock)  # exit 2, as plan() asks it
+        if job.corners is not None:
+            check_corner_ids(job.corners, mesh.n_vertices)
+        check_job_together(job, params)  # exit 3: after every check of single values and of the mesh
+        check_holder_fits(args.holder_radius, job.tool_radius)
     rounds = []  # --replan: one entry per plan
     once = WarnOnce() if args.replan else None  # the same mesh warns the same on every plan: once is enough
     with all_or_nothing(args.output, args.report, args.plot, args.html):

@@ -101,6 +101,35 @@ def printed_through(flt):
 
 
 @contextlib.contextmanager
+def held_back():
+    """Context in which the root logger's handlers print nothing: what they would have
+    printed is printed on leaving normally, and dropped when the block raises, so that a
+    refusal after a read that warned stays the one line it is."""
+    held = []
+
+    class _Hold(logging.Filter):
+        def filter(self, record) -> bool:
+            if not held or held[-1] is not record:  # once per record, whatever the handlers
+                held.append(record)
+            return False
+
+    hold = _Hold()
+    root = logging.getLogger()
+    handlers = list(root.handlers)
+    for hd in handlers:
+        hd.addFilter(hold)
+    try:
+        yield
+    finally:
+        for hd in handlers:
+            hd.removeFilter(hold)
+    for record in held:  # not reached when the block raised
+        for hd in handlers:
+            if record.levelno >= hd.level:
+                hd.handle(record)
+
+
+@contextlib.contextmanager
 def sample_bar(total: int, desc: str, enabled: bool = True):
     """A bar of ``total`` samples on a terminal, log lines written above it; yields its
     ``update`` callable, or ``None`` when quiet or off a terminal."""

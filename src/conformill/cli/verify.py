@@ -13,7 +13,7 @@ import sys
 import time
 from pathlib import Path
 
-from conformill.cli.progress import sample_bar
+from conformill.cli.progress import held_back, sample_bar
 from conformill.errors import ConformillError
 
 
@@ -259,24 +259,24 @@ def run(args) -> int:
 def _check(args) -> int:
     """Read, simulate, report: :func:`run` once the arguments are checked."""
     from conformill.mesh.io import read_mesh
+    from conformill.planning.steps import check_ball_size
     from conformill.verify.gcode import read_gcode
-    from conformill.verify.simulate import verify
+    from conformill.verify.holder import check_holder_fits
+    from conformill.verify.simulate import check_cuts, verify
 
     t0 = time.perf_counter()
-    mesh = read_mesh(args.mesh, scale=args.scale, validate=False)
-    from conformill.planning.steps import check_ball_size
+    with held_back():  # the reads' warnings are printed once the checks pass
+        mesh = read_mesh(args.mesh, scale=args.scale, validate=False)
+        check_ball_size(args.tool_radius, mesh.V, ConformillError, "--tool-radius", stock=args.stock)  # before reading
+        if args.program == "-":
+            from conformill.verify.gcode import program_text
 
-    check_ball_size(args.tool_radius, mesh.V, ConformillError, "--tool-radius", stock=args.stock)  # before reading
-    if args.program == "-":
-        from conformill.verify.gcode import program_text
-
-        source = program_text(sys.stdin.buffer.read(), "standard input")  # refused if binary, as a file is
-    else:
-        source = Path(args.program)
-    program = read_gcode(source, chord_tol=args.chord_tol)
-    from conformill.verify.holder import check_holder_fits
-
-    check_holder_fits(args.holder_radius, args.tool_radius)  # exit 3: after every check of input (exit 2)
+            source = program_text(sys.stdin.buffer.read(), "standard input")  # refused if binary, as a file is
+        else:
+            source = Path(args.program)
+        program = read_gcode(source, chord_tol=args.chord_tol)
+        check_cuts(program)
+        check_holder_fits(args.holder_radius, args.tool_radius)  # exit 3: after every check of input (exit 2)
     quiet = getattr(args, "quiet", False)
     with sample_bar(args.samples, "simulating", enabled=not quiet) as update:
         res = verify(mesh, program, args.tool_radius, n_samples=args.samples, seed=args.seed,

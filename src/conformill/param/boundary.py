@@ -91,6 +91,29 @@ def rectangle_map(V: np.ndarray, loop: np.ndarray, corners):
     return uv, (float(X), float(Y))
 
 
+def check_corner_ids(corners, n_vertices: int | None = None) -> list:
+    """Four corner vertex ids as ints, checked without the boundary: four distinct ids,
+    each in the mesh (``0..n_vertices-1``; without ``n_vertices``, 0 or more).
+
+    Raises
+    ------
+    ParameterizationError
+        What is wrong, with the ids (exit code 2: input that names no vertices of a
+        rectangle).
+    """
+    try:
+        c = [int(x) for x in corners]
+    except (TypeError, ValueError):
+        raise ParameterizationError(f"corners must be four vertex ids, got {corners!r}") from None
+    if len(c) != 4 or len(set(c)) != 4:
+        raise ParameterizationError(f"corners must be four distinct vertex ids, got {tuple(c)}")
+    for x in c:
+        if x < 0 or (n_vertices is not None and x >= n_vertices):
+            ids = "ids are 0 or more" if n_vertices is None else f"ids 0..{int(n_vertices) - 1}"
+            raise ParameterizationError(f"corner vertex id {x} is not in the mesh ({ids})")
+    return c
+
+
 def corner_positions(loop: np.ndarray, corners, n_vertices: int | None = None) -> np.ndarray:
     """Positions of four corner vertex ids on the loop, checked.
 
@@ -109,16 +132,7 @@ def corner_positions(loop: np.ndarray, corners, n_vertices: int | None = None) -
         Not four distinct ids, an id not in the mesh, an id not on the boundary, or not in
         boundary order.
     """
-    try:
-        c = [int(x) for x in corners]
-    except (TypeError, ValueError):
-        raise ParameterizationError(f"corners must be four vertex ids, got {corners!r}") from None
-    if len(c) != 4 or len(set(c)) != 4:
-        raise ParameterizationError(f"corners must be four distinct vertex ids, got {tuple(c)}")
-    for x in c:
-        if x < 0 or (n_vertices is not None and x >= n_vertices):
-            ids = "ids are 0 or more" if n_vertices is None else f"ids 0..{int(n_vertices) - 1}"
-            raise ParameterizationError(f"corner vertex id {x} is not in the mesh ({ids})")
+    c = check_corner_ids(corners, n_vertices)
     where = np.full(int(loop.max()) + 1, -1, dtype=np.int64)
     where[loop] = np.arange(len(loop))
     pos = np.array([where[x] if x < len(where) else -1 for x in c], dtype=np.int64)

@@ -56,6 +56,7 @@ from conformill.verify.samples import SurfaceSamples, sample_surface
 
 __all__ = [
     "CapsuleGrid",
+    "check_cuts",
     "remaining_material",
     "rapid_clearance",
     "unreachable_samples",
@@ -1029,6 +1030,18 @@ def _shank_kernel(Xs, start, zmax, nx, ny, lox, loy, g, C, rho, depth, out):
         out[q] = _shank_hit(Xs, start, zmax, nx, ny, lox, loy, g, C[q, 0], C[q, 1], C[q, 2] + depth, rho)
 
 
+def check_cuts(program: Program) -> None:
+    """Refuse a program that cuts nothing.
+
+    Raises
+    ------
+    GCodeError
+        The program has no feed moves (exit code 2, a program that is no finishing pass).
+    """
+    if not np.any(program.motion == FEED):
+        raise GCodeError(f"{program.source}: the program has no feed moves (nothing is cut)")
+
+
 def verify(mesh, program: Program, tool_radius: float, n_samples: int = 200_000, seed: int = 0,
            scallop: float | None = None, gouge: float | None = None, normals: str = "vertex",
            ray_cap: float | None = None, clearance_cap: float = 5.0, gouge_tol: float = 1e-3,
@@ -1125,8 +1138,7 @@ def verify(mesh, program: Program, tool_radius: float, n_samples: int = 200_000,
     for nm, v in (("scallop", scallop), ("gouge", gouge)):
         if v is not None and not (math.isfinite(v) and v >= 0):
             raise ConformillError(f"{nm} limit must be >= 0 mm, got {v!r}")
-    if not np.any(program.motion == FEED):
-        raise GCodeError(f"{program.source}: the program has no feed moves (nothing is cut)")
+    check_cuts(program)
     V = np.ascontiguousarray(mesh.V, dtype=np.float64)
     F = np.ascontiguousarray(mesh.F, dtype=np.int64)
     if samples is None:

@@ -307,6 +307,29 @@ def check_job(job: Job, together: bool = True) -> PathParams:
     return params
 
 
+def check_job_on(job: Job, params: PathParams, mesh: Mesh) -> None:
+    """The checks of a job (its values each checked, :func:`check_job` with
+    ``together=False``) that need the mesh, then :func:`check_job_together`.
+
+    Raises
+    ------
+    JobValueError
+        A ball far larger than the part (:func:`conformill.planning.steps.check_ball_size`;
+        exit code 2).
+    ParameterizationError
+        Corners that are not four distinct vertex ids of the mesh (exit code 2; their place
+        on the boundary is checked with the map).
+    PlanningError
+        :func:`check_job_together` (exit code 3).
+    """
+    check_ball_size(params.tool_radius, mesh.V, stock=params.stock)
+    if job.corners is not None:
+        from conformill.param.boundary import check_corner_ids
+
+        check_corner_ids(job.corners, mesh.n_vertices)
+    check_job_together(job, params)
+
+
 def check_job_together(job: Job, params: PathParams) -> None:
     """Refuse a job whose values, each well formed (:func:`check_job` with
     ``together=False``), cannot be met together.
@@ -502,7 +525,6 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
     """
     from conformill.cutter import BallCutter
     from conformill.param import parameterize
-    from conformill.param.boundary import check_corner_ids
     from conformill.param.quality import quality
     from conformill.patterns.contour import plan_contour
     from conformill.patterns.domains import BoundaryPolygon
@@ -510,10 +532,7 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
     from conformill.patterns.zigzag import plan_zigzag
 
     params = check_job(job, together=False)
-    check_ball_size(params.tool_radius, mesh.V, stock=params.stock)
-    if job.corners is not None:  # four ids of the mesh; their place on the boundary is checked with the map
-        check_corner_ids(job.corners, mesh.n_vertices)
-    check_job_together(job, params)  # exit 3 after the checks of single values, the ball's size and the corners
+    check_job_on(job, params, mesh)
     timer = _Timer()
     r, h, e, stock = params.tool_radius, params.scallop, params.tolerance, params.stock
     # the cutter places the centres of a ball of radius r + stock on the part: the ball of

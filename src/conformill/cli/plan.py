@@ -218,9 +218,7 @@ def _run_job(args, job, params, judge_h: float) -> int:
     from conformill.output.atomic import all_or_nothing
     from conformill.output.gcode import write_gcode
     from conformill.output.report import write_json
-    from conformill.param.boundary import check_corner_ids
-    from conformill.pipeline import check_job_together, plan, with_overrides
-    from conformill.planning.steps import check_ball_size
+    from conformill.pipeline import check_job_on, plan, with_overrides
     from conformill.verify.holder import check_holder_fits
 
     t0 = time.perf_counter()
@@ -228,10 +226,7 @@ def _run_job(args, job, params, judge_h: float) -> int:
         t = time.perf_counter()
         mesh = read_mesh(args.mesh, scale=args.scale)
         t_read = time.perf_counter() - t
-        check_ball_size(params.tool_radius, mesh.V, stock=params.stock)  # exit 2, as plan() asks it
-        if job.corners is not None:
-            check_corner_ids(job.corners, mesh.n_vertices)
-        check_job_together(job, params)  # exit 3: after every check of single values and of the mesh
+        check_job_on(job, params, mesh)  # exit 2 against the mesh, then the values together (exit 3)
         check_holder_fits(args.holder_radius, job.tool_radius)
     rounds = []  # --replan: one entry per plan
     once = WarnOnce() if args.replan else None  # the same mesh warns the same on every plan: once is enough

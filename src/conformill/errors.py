@@ -24,10 +24,11 @@ Which job checks give which code:
 
 When an input holds mistakes of both kinds, exit code 2 wins for every mistake found
 before planning: ``plan`` and ``verify`` check each value on its own, then read and check
-the mesh (the program, the ball's size against the part's), and only then the values
-against each other (exit code 3). What only the work finds (rectangle corners off the
-boundary, a safe height below the part, a program too large for the memory, a side step
-that collapses) is found in the order the stages meet it.
+the mesh and the program (the ball's size against the part's, the corner ids against the
+mesh, a program that cuts nothing), and only then the values against each other (exit
+code 3); the reads' warnings are printed once those checks pass. What only the work finds
+(rectangle corners off the boundary, a safe height below the part, a program too large
+for the memory, a side step that collapses) is found in the order the stages meet it.
 """
 
 from __future__ import annotations

@@ -520,8 +520,9 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
         order; exit code 2.
     PlanningError
         A job that cannot be met (exit code 3), refused after the checks above: a scallop
-        at or above the tool radius, a blend larger than it, a side step that collapses, a safe height below the part, a part whose program
-        could not fit in this machine's memory (wrong units).
+        at or above the tool radius, a blend larger than it, a side step that collapses, a
+        safe height below the part, a part whose program could not fit in this machine's
+        memory (wrong units).
     """
     from conformill.cutter import BallCutter
     from conformill.param import parameterize

@@ -113,16 +113,9 @@ def held_back():
                 held.append(record)
             return False
 
-    hold = _Hold()
-    root = logging.getLogger()
-    handlers = list(root.handlers)
-    for hd in handlers:
-        hd.addFilter(hold)
-    try:
+    handlers = list(logging.getLogger().handlers)  # those printed_through filters
+    with printed_through(_Hold()):
         yield
-    finally:
-        for hd in handlers:
-            hd.removeFilter(hold)
     for record in held:  # not reached when the block raised
         for hd in handlers:
             if record.levelno >= hd.level:

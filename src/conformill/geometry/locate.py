@@ -272,10 +272,7 @@ def _pick(cum, x, scale):
         start[b] = i
     out = np.empty(x.shape[0], dtype=np.int64)
     for k in range(x.shape[0]):
-        xk = x[k]
-        if not xk == xk:  # NaN sorts last, as in searchsorted
-            out[k] = m
-            continue
+        xk = x[k]  # finite (pick_faces leaves anything else to searchsorted)
         b = min(max(int(xk * scale), 0), m - 1)  # a guess: rounding is mended below
         i = start[b]
         while i > 0 and cum[i - 1] > xk:

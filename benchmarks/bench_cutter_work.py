@@ -10,7 +10,10 @@ must be the plan's own work). It prints:
 * per step, the core seconds (the lower of the two replays), the points in and the points
   it adds, and the time per output point;
 * per round of ``settle`` and of ``refine``: the moves tested and the points inserted
-  (``refine`` round 0 checks every move, later rounds the two halves of each split one);
+  (``refine`` checks every move in one round and inserts all its points there, since
+  session 47; a second round checks again, with more room, the moves that needed more
+  than eight points; before, round 0 checked every move and later rounds the two halves
+  of each split one);
 * the CC points by *lift*, how far the drop-cutter raises the ball above the planned
   contact (the ball cannot touch the planned point: an undercut, a wall, a pocket tighter
   than the ball), and the share of the planned moves (between the centres of the CC
@@ -100,7 +103,7 @@ def replay(cut, calls, rounds=None):
     t = dict.fromkeys(STEPS, 0.0)
     state = {"round": 0}
     if rounds is not None:
-        reaches, worst = cut._reaches, cut._worst_points
+        reaches, moves = cut._reaches, cut._refine_moves
 
         def count_reaches(xy, *a, **k):
             out = reaches(xy, *a, **k)
@@ -108,15 +111,15 @@ def replay(cut, calls, rounds=None):
             state["round"] += 1
             return out
 
-        def count_worst(P, seg, thresh, *a, **k):
-            out = worst(P, seg, thresh, *a, **k)
+        def count_moves(P, seg, *a, **k):
+            out = moves(P, seg, *a, **k)
             rw = rounds.setdefault(("refine", state["round"]), [0, 0])
             rw[0] += len(seg)
-            rw[1] += int((out[1] > thresh).sum())
+            rw[1] += int((out[3] != 0).sum())
             state["round"] += 1
             return out
 
-        cut._reaches, cut._worst_points = count_reaches, count_worst
+        cut._reaches, cut._refine_moves = count_reaches, count_moves
     try:
         for step, a, k, out in calls:
             state["round"] = 0
@@ -127,7 +130,7 @@ def replay(cut, calls, rounds=None):
                 raise SystemExit(f"replay of {step} differs from the plan's output: the replay is not the plan's work")
     finally:
         if rounds is not None:
-            del cut._reaches, cut._worst_points  # back to the class's methods
+            del cut._reaches, cut._refine_moves  # back to the class's methods
     return t
 
 
@@ -192,10 +195,10 @@ def main(argv=None) -> int:
             continue
         d = np.diff(c, axis=0)
         seg = np.flatnonzero(np.hypot(d[:, 0], d[:, 1]) > 1e-9)
-        depth = cut._worst_points(c, seg, thresh, (args.r - thresh) ** 2, 16)[1]
+        cuts = cut._refine_moves(c, seg, thresh, (args.r - thresh) ** 2, 16, 8)[3] != 0  # a point inserted
         cls = np.digitize(np.maximum(lift[seg], lift[seg + 1]), LIFT_EDGES[1:-1])
         moves_by += np.bincount(cls, minlength=len(moves_by))
-        split_by += np.bincount(cls[depth > thresh], minlength=len(split_by))
+        split_by += np.bincount(cls[cuts], minlength=len(split_by))
     lift = np.concatenate(lifts)
     cls = np.digitize(lift, LIFT_EDGES[1:-1])
     print(f"\nCC points by lift (mm), and the planned moves (before settle) that cut more than e/2 = {thresh:g} "

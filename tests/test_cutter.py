@@ -472,13 +472,59 @@ class TestRefine:
         tol = 0.01
         assert _max_dip(cut, P) > 4 * tol
         with caplog.at_level("WARNING", logger="conformill.cutter"):
-            Q = cut.refine(P, tol, max_iter=0)
+            Q = cut.refine(P, tol, max_points=0)
         assert "still unchecked" in caplog.text
         assert _is_subsequence(P, Q)
         l_safe = 2 * np.sqrt(tol / 2 * (2 * R_BALL - tol / 2))
         assert np.linalg.norm(np.diff(Q, axis=0), axis=1).max() <= l_safe
         assert np.all(Q[:, 2] >= cut.drop(Q[:, :2]) - 1e-12)
         assert _max_dip(cut, Q) <= tol
+
+    @pytest.mark.parametrize("max_points", [1, 3, 8, 9, 256])
+    def test_room_per_move(self, max_points, caplog):
+        # long moves over a dome need many points each: with little room they are halved
+        # into L_safe pieces instead (with a warning), with more room (past the first
+        # eight) they are refined again with it; every way, the moves are proved safe
+        m = syn.sphere_cap(R=30.0, radius_xy=25.0, spacing=1.0)
+        cut = BallCutter(m.V, m.F, R_BALL)
+        x = np.linspace(-18, 18, 4)  # 12 mm moves
+        xy = np.column_stack([x, 0.3 * x])
+        P = np.column_stack([xy, cut.drop(xy)])
+        tol = 0.01
+        with caplog.at_level("WARNING", logger="conformill.cutter"):
+            Q = cut.refine(P, tol, max_points=max_points)
+        assert _is_subsequence(P, Q)
+        assert _max_dip(cut, Q) <= tol
+        assert np.all(Q[:, 2] >= cut.drop(Q[:, :2]) - 1e-12)
+        full = cut.refine(P, tol)
+        # 12 mm chords 0.6 mm below a 34 mm dome: more than 8 points each, fewer than 256
+        assert 3 * 8 < len(full) - len(P) < 3 * 256
+        if max_points >= len(full) - len(P):
+            np.testing.assert_array_equal(Q, full)
+            assert "still unchecked" not in caplog.text
+        if max_points <= 8:
+            assert "still unchecked" in caplog.text
+            l_safe = 2 * np.sqrt(tol / 2 * (2 * R_BALL - tol / 2))
+            assert np.linalg.norm(np.diff(Q, axis=0), axis=1).max() <= l_safe + 1e-12
+
+    def test_inserted_points_follow_the_sphere(self):
+        # over a sphere cap the drop surface is a sphere of radius R + r: the chords of the
+        # refined move lie at most tol/2 below it (the sagitta of each chord), and no move
+        # needs a point where a chord no longer than L_safe would do
+        R = 30.0
+        m = syn.sphere_cap(R=R, radius_xy=25.0, spacing=0.5)
+        cut = BallCutter(m.V, m.F, R_BALL)
+        xy = np.array([[-15.0, 2.0], [15.0, -1.0]])
+        P = np.column_stack([xy, cut.drop(xy)])
+        tol = 0.01
+        Q = cut.refine(P, tol)
+        L = np.linalg.norm(np.diff(Q, axis=0), axis=1)
+        assert _max_dip(cut, Q) <= tol / 2 + 1e-9
+        # a chord of length L under a sphere of radius R + r sags L^2 / 8(R + r): each
+        # inserted point was needed, so the moves are not much shorter than the sag allows
+        sag_l = np.sqrt(8 * (R + R_BALL) * tol / 2)
+        assert L.max() <= sag_l * 1.05 + 1e-9
+        assert np.median(L) >= 0.3 * sag_l
 
     def test_ridge_crease(self):
         # a roof: two planes meeting at the ridge x = 0; the drop surface rounds it with r

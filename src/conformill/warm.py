@@ -70,7 +70,7 @@ def _cached(module: str, name: str) -> bool:
 
 
 #: The kernels asked by :func:`needed` (the largest of each part), as (module, name).
-PROBES = {"cutter": (("conformill.cutter", "_worst_points"), ("conformill.cutter", "_highest_floats")),
+PROBES = {"cutter": (("conformill.cutter", "_refine_moves"), ("conformill.cutter", "_highest_floats")),
           "verify": (("conformill.verify.simulate", "_pairs_d2"), ("conformill.verify.simulate", "_cast")),
           "holder": (("conformill.verify.holder", "_all"), ("conformill.verify.holder", "_coarse"))}
 

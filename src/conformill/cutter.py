@@ -518,6 +518,18 @@ def _known_room(K, Fl, K2, Fl2, ft, fz, need):
     return nK, nF, np.empty((2, cap)), np.zeros(cap, dtype=np.int8), np.empty(cap, dtype=np.int64), np.empty(cap)
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _sub_move(K, Fl, i):
+    """The node after node ``i`` of :func:`_refine_move`'s samples and the chord between
+    them: ``(b, t_i, z_i, slope dz/dt)``."""
+    b = i + 1
+    while not (Fl[b] & _NODE):
+        b += 1
+    ta = K[0, i]
+    za = K[1, i]
+    return b, ta, za, (K[1, b] - za) / (K[0, b] - ta)
+
+
 @njit(cache=True, nogil=True)
 def _refine_move(ax, ay, az, vx, vy, vz, r, thresh, floor2, l_safe, max_depth, T, B, gx0, gy0, cell, ncx, ncy,
                  cstart, ctri, czmax, EB, CP, warm, cid, cbound, K, Fl, K2, Fl2, ft, fz, ot, oz):
@@ -578,13 +590,8 @@ def _refine_move(ax, ay, az, vx, vy, vz, r, thresh, floor2, l_safe, max_depth, T
         changed = False
         i = 0
         while i < k - 1:
-            b = i + 1
-            while not (Fl[b] & _NODE):
-                b += 1
+            b, ta, za, s = _sub_move(K, Fl, i)
             if not (Fl[i] & _PROVEN):
-                ta = K[0, i]
-                za = K[1, i]
-                s = (K[1, b] - za) / (K[0, b] - ta)
                 ln = (K[0, b] - ta) * math.sqrt(lxy * lxy + s * s)
                 if _piece_ok(r, 0.0, 0.0, ln * ln, floor2):  # short enough to be safe whatever lies below
                     Fl[i] |= _PROVEN
@@ -618,13 +625,8 @@ def _refine_move(ax, ay, az, vx, vy, vz, r, thresh, floor2, l_safe, max_depth, T
         nf = 0
         i = 0
         while i < k - 1:
-            b = i + 1
-            while not (Fl[b] & _NODE):
-                b += 1
+            b, ta, za, s = _sub_move(K, Fl, i)
             if not (Fl[i] & _PROVEN):
-                ta = K[0, i]
-                za = K[1, i]
-                s = (K[1, b] - za) / (K[0, b] - ta)
                 per_t = math.sqrt(lxy * lxy + s * s)  # 3D length of this chord per unit of t
                 f0 = nf
                 d0 = 0.0

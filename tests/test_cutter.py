@@ -640,6 +640,28 @@ class TestRefine:
         with pytest.raises(PlanningError, match="tolerance must be positive"):
             cut.refine(np.zeros((2, 3)), 0.0)
 
+    @pytest.mark.parametrize("kw, match", [(dict(max_depth=41), "max_depth"), (dict(max_depth=-1), "max_depth"),
+                                           (dict(max_depth=2.5), "max_depth"), (dict(max_points=-1), "max_points"),
+                                           (dict(max_points=1.5), "max_points")])
+    def test_bad_limits(self, kw, match):
+        # beyond 40 levels the halved pieces' ends stop being distinct floats
+        m = syn.plane(size=20.0, spacing=5.0)
+        cut = BallCutter(m.V, m.F, R_BALL)
+        P = np.array([[-5.0, 0.0, R_BALL], [5.0, 0.0, R_BALL]])
+        with pytest.raises(PlanningError, match=match):
+            cut.refine(P, 0.01, **kw)
+        with pytest.raises(PlanningError, match=match):
+            cut.refine_pieces([P], 0.01, **kw)
+
+    def test_deepest_limit_is_accepted(self):
+        # max_depth 40 (the limit): a move 1e-7 mm inside tol/2 below a plane needs about
+        # eight levels below L_safe, so the deepest limit proves it as the default does
+        m = syn.plane(size=60.0, spacing=2.0, jitter=0.0, z=0.0)
+        cut = BallCutter(m.V, m.F, 3.0)
+        P = np.array([[-5.0, 0.3, 3.0 - 0.0049999], [5.0, 0.7, 3.0 - 0.0049999]])
+        np.testing.assert_array_equal(cut.refine(P, 0.01, max_depth=40), P)
+        np.testing.assert_array_equal(cut.refine(P, 0.01), P)
+
 
 # ----------------------------------------------------------------------------- settle (float above D)
 

@@ -87,6 +87,8 @@ _CHUNK = 256
 #: Points a move of :meth:`BallCutter.refine` has room for at first (moves that need more
 #: are refined again with the full room).
 _FIRST_ROOM = 8
+#: Most bisection levels of :meth:`BallCutter.refine` below its first pieces.
+_MAX_DEPTH = 40
 #: Upper bound on grid cells (memory); the cell size grows when exceeded.
 _MAX_CELLS = 4_000_000
 
@@ -1311,10 +1313,11 @@ class BallCutter:
         Raises
         ------
         PlanningError
-            Bad shapes, non-finite values, ``tol`` not positive.
+            Bad shapes, non-finite values, ``tol`` not positive, ``max_points`` negative,
+            ``max_depth`` outside [0, 40].
         """
         P = _as_points(centers, 3, "centers")
-        tol = _refine_tol(tol)
+        tol, max_points, max_depth = _refine_args(tol, max_points, max_depth)
         if len(P) < 2:
             return P.copy()
         # moves to check: all but the (nearly) vertical ones (a vertical move between two
@@ -1326,7 +1329,7 @@ class BallCutter:
     def refine_pieces(self, pieces, tol: float, max_points: int = 256, max_depth: int = 16) -> list:
         """:meth:`refine` on each polyline of ``pieces``, in one batch of kernel calls (the
         same points as one call per piece; see :meth:`settle_pieces`)."""
-        tol = _refine_tol(tol)
+        tol, max_points, max_depth = _refine_args(tol, max_points, max_depth)
         if not pieces:
             return []
         P, check, starts = _stack_pieces(pieces)
@@ -1613,11 +1616,18 @@ def _settle_args(tol, steps):
     return tol, steps
 
 
-def _refine_tol(tol) -> float:
+def _refine_args(tol, max_points, max_depth) -> tuple:
+    """``tol``, ``max_points`` and ``max_depth`` of :meth:`BallCutter.refine`, checked
+    (beyond ``_MAX_DEPTH`` levels the halved pieces' ends would no longer be distinct
+    floats)."""
     tol = float(tol)
     if not (math.isfinite(tol) and tol > 0):
         raise PlanningError(f"cutter: refine tolerance must be positive, got {tol}")
-    return tol
+    if int(max_points) != max_points or max_points < 0:
+        raise PlanningError(f"cutter: refine max_points must be a whole number >= 0, got {max_points}")
+    if int(max_depth) != max_depth or not 0 <= max_depth <= _MAX_DEPTH:
+        raise PlanningError(f"cutter: refine max_depth must be a whole number in [0, {_MAX_DEPTH}], got {max_depth}")
+    return tol, int(max_points), int(max_depth)
 
 
 def _stack_pieces(pieces):

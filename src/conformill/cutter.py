@@ -1352,10 +1352,9 @@ class BallCutter:
             if over.size and max_points > _FIRST_ROOM:
                 r2, t2, z2, c2 = self._refine_moves(P, seg[over], thresh, floor2, max_depth, max_points)
                 cnt[over] = c2
-                order = np.argsort(np.concatenate([rows, r2]), kind="stable")
-                rows = np.concatenate([rows, r2])[order]
-                ts = np.concatenate([ts, t2])[order]
-                zs = np.concatenate([zs, z2])[order]
+                rows = np.concatenate([rows, r2])
+                order = np.argsort(rows, kind="stable")  # a move's points come from one call, in order
+                rows, ts, zs = rows[order], np.concatenate([ts, t2])[order], np.concatenate([zs, z2])[order]
             undecided = seg[cnt < 0]
             if rows.size:
                 newpts = P[rows] + ts[:, None] * (P[rows + 1] - P[rows])

@@ -450,3 +450,71 @@ def test_a_huge_longest_step_does_not_overflow_where_there_is_no_rise():
     S, t = _random_sample(500, seed=2)
     ls, _ = Planner(None, params, seg_len=0.2, max_step=1e200).allowed(S, t)
     np.testing.assert_array_equal(ls, _allowed_numpy(Planner(None, params, seg_len=0.2), S, t)[0])
+
+
+def _select_forward_numpy(X, kappa, e, max_step, max_rounds=30, e_convex=None):
+    """:func:`conformill.patterns.forward.select_forward` as it was in numpy (session 47)."""
+    from conformill.patterns.forward import _add_farthest, _cap_steps
+    from conformill.planning.steps import forward_step
+
+    k = len(X)
+    if k <= 2:
+        return np.arange(k, dtype=np.int64)
+    tol = np.full(k, float(e))
+    if e_convex is not None:
+        tol[np.asarray(kappa) < 0] = float(e_convex)
+    lf = forward_step(tol, kappa, max_step)
+    seg = np.linalg.norm(np.diff(X, axis=0), axis=1)
+    lf_mid = np.minimum(lf[:-1], lf[1:])
+    N = np.concatenate([[0.0], np.cumsum(seg / lf_mid)])
+    m = max(1, int(np.ceil(N[-1] - 1e-9)))
+    targets = np.linspace(0.0, N[-1], m + 1)
+    idx = np.searchsorted(N, targets, side="right") - 1
+    idx[-1] = k - 1
+    idx = np.unique(np.clip(idx, 0, k - 1))
+    X = np.ascontiguousarray(X, dtype=np.float64)
+    idx = _cap_steps(X, idx.astype(np.int64), float(max_step))
+    return _add_farthest(X, tol, idx, max_rounds)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_the_forward_steps_are_the_numpy_arithmetic_bit_for_bit(seed):
+    """The compiled forward steps keep the samples the numpy steps kept: paths from a few
+    samples to thousands, evenly and unevenly spaced, flat, wavy and jittered, curvatures
+    from nearly flat to far past the tolerance's circle (2 R <= e), zero and NaN, with and
+    without a convex tolerance, and longest steps from below a sample's spacing to above the
+    path's length."""
+    from conformill.patterns.forward import select_forward
+
+    rng = np.random.default_rng(seed)
+    for trial in range(150):
+        k = int(rng.integers(1, 2500))
+        t = np.sort(rng.uniform(0.0, 1.0, k)) if trial % 2 else np.linspace(0.0, 1.0, k)
+        L = rng.uniform(0.5, 200.0)
+        X = np.column_stack([t * L, np.sin(t * rng.uniform(0.0, 40.0)) * rng.uniform(0.0, 5.0),
+                             rng.normal(0.0, 0.01, k).cumsum() * (trial % 3 == 0)])
+        kappa = rng.normal(0.0, rng.choice([1e-3, 0.1, 1.0, 300.0]), k)
+        kappa[rng.random(k) < 0.1] = 0.0
+        kappa[rng.random(k) < 0.02] = np.nan
+        e = float(rng.choice([0.001, 0.01, 0.1]))
+        max_step = float(rng.choice([0.05, 1.0, 10.0, 1000.0]))
+        e_convex = None if trial % 4 else e * float(rng.choice([1.0, 2.0, 4.0]))
+        got = select_forward(X, kappa, e, max_step, e_convex=e_convex)
+        want = _select_forward_numpy(X, kappa, e, max_step, e_convex=e_convex)
+        assert got.dtype == np.int64
+        np.testing.assert_array_equal(got, want)
+
+
+def test_the_sample_curvature_is_normal_curvature_bit_for_bit():
+    """:meth:`SurfaceSample.curvature` (compiled, row by row) against
+    :func:`normal_curvature` on the columns, as it was: degenerate metrics, NaN rows and zero
+    directions included."""
+    from conformill.geometry.differential import normal_curvature
+
+    S, t = _random_sample(3000, seed=3)
+    d = np.array(t)
+    d[:10] = 0.0
+    want = normal_curvature(*S.I.T, *S.II.T, d[:, 0], d[:, 1])
+    got = S.curvature(d)
+    assert np.isnan(want).any() and np.isfinite(want).any()
+    np.testing.assert_array_equal(got, want)

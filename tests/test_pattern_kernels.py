@@ -452,11 +452,39 @@ def test_a_huge_longest_step_does_not_overflow_where_there_is_no_rise():
     np.testing.assert_array_equal(ls, _allowed_numpy(Planner(None, params, seg_len=0.2), S, t)[0])
 
 
+def _forward_step_numpy(e, kappa, max_step):
+    """:func:`conformill.planning.steps.forward_step` as it was in numpy (session 47)."""
+    e = np.asarray(e, dtype=np.float64)
+    ak = np.abs(np.asarray(kappa, dtype=np.float64))
+    cap = np.asarray(max_step, dtype=np.float64)
+    ok = np.isfinite(ak) & (ak > 0) & (e * ak < 2.0)
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        w = 2.0 * np.sqrt(e * (2.0 - e * ak) / np.where(ok, ak, 1.0))
+    return np.where(ok, np.minimum(w, cap), cap * np.ones_like(w))
+
+
+def test_the_forward_step_is_the_numpy_arithmetic_bit_for_bit():
+    """:func:`forward_step` (compiled per sample since session 48): curvatures of both signs
+    from subnormal to past ``2 / e``, zero, infinite and NaN; arrays, scalars and their
+    broadcasts."""
+    from conformill.planning.steps import forward_step
+
+    rng = np.random.default_rng(4)
+    kappa = rng.normal(0.0, 1.0, 5000) * 10.0 ** rng.uniform(-6, 3, 5000)
+    kappa[:8] = [0.0, -0.0, np.inf, -np.inf, np.nan, 5e-324, -1e-310, 2.0 / 0.01]
+    e = rng.choice([0.001, 0.01, 0.1], 5000)
+    cap = rng.choice([0.05, 1.0, 10.0], 5000)
+    for args in ((e, kappa, cap), (0.01, kappa, 10.0), (e, 0.5, cap), (0.01, -0.5, 10.0), (e[:, None], kappa[:7], 1.0)):
+        got, want = forward_step(*args), _forward_step_numpy(*args)
+        assert got.shape == want.shape and got.dtype == np.float64
+        np.testing.assert_array_equal(got, want)
+
+
 def _select_forward_numpy(X, kappa, e, max_step, max_rounds=30, e_convex=None):
     """:func:`conformill.patterns.forward.select_forward` as it was in numpy (session 47)."""
     from conformill.patterns.forward import _add_farthest, _cap_steps
-    from conformill.planning.steps import forward_step
 
+    forward_step = _forward_step_numpy
     k = len(X)
     if k <= 2:
         return np.arange(k, dtype=np.int64)

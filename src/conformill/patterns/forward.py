@@ -20,6 +20,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from conformill.planning.steps import forward_step_one
+
 
 @njit(cache=True, nogil=True)
 def _chord_deviation(X, idx):
@@ -103,22 +105,17 @@ def select_forward(X: np.ndarray, kappa: np.ndarray, e: float, max_step: float, 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _select(X, kappa, e, e_convex, max_step, max_rounds):
     """:func:`select_forward` for ``k > 2`` samples (``e_convex`` NaN: none), in one
-    compiled pass with the arithmetic of its numpy form (``planning.steps.forward_step``,
-    the cumulative ``ds / l_f``, ``linspace`` and ``searchsorted``): the same indices, without
+    compiled pass with the arithmetic of its numpy form (the forward step per sample, the
+    cumulative ``ds / l_f``, ``linspace`` and ``searchsorted``): the same indices, without
     a dozen array calls per piece (igea zigzag ``--scan``: 0.24 s of the plan's forward
     steps, two thirds of it those calls)."""
     k = X.shape[0]
-    # the tolerance per sample and the forward step l_f there (forward_step)
+    # the tolerance per sample and the forward step l_f there
     tol = np.empty(k)
     lf = np.empty(k)
     for i in range(k):
-        ti = e_convex if (e_convex == e_convex and kappa[i] < 0) else e
-        tol[i] = ti
-        ak = abs(kappa[i])
-        if np.isfinite(ak) and ak > 0 and ti * ak < 2.0:
-            lf[i] = min(2.0 * np.sqrt(ti * (2.0 - ti * ak) / ak), max_step)
-        else:
-            lf[i] = max_step
+        tol[i] = e_convex if (e_convex == e_convex and kappa[i] < 0) else e
+        lf[i] = forward_step_one(tol[i], kappa[i], max_step)
     # N: the cumulative steps in units of l_f (the smaller of each chord's two ends)
     N = np.empty(k)
     N[0] = 0.0

@@ -507,14 +507,29 @@ def forward_step(e, kappa, max_step):
     -------
     ndarray of float64
     """
-    e = np.asarray(e, dtype=np.float64)
-    ak = np.abs(np.asarray(kappa, dtype=np.float64))
-    cap = np.asarray(max_step, dtype=np.float64)
-    ok = np.isfinite(ak) & (ak > 0) & (e * ak < 2.0)
-    # a subnormal |kappa| overflows to inf, which the cap then bounds
-    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        w = 2.0 * np.sqrt(e * (2.0 - e * ak) / np.where(ok, ak, 1.0))
-    return np.where(ok, np.minimum(w, cap), cap * np.ones_like(w))
+    args = [np.asarray(a, dtype=np.float64) for a in (e, kappa, max_step)]
+    shape = np.broadcast_shapes(*(a.shape for a in args))
+    flat = [np.ascontiguousarray(np.broadcast_to(a, shape)).reshape(-1) for a in args]
+    return _forward_steps(*flat).reshape(shape)
+
+
+@njit(cache=True, nogil=True, inline="always", error_model="numpy")
+def forward_step_one(e, kappa, max_step):
+    """:func:`forward_step` of one sample (compiled; the forward steps call it per sample)."""
+    ak = abs(kappa)
+    if np.isfinite(ak) and ak > 0 and e * ak < 2.0:
+        # a subnormal |kappa| overflows to inf, which the cap then bounds
+        return min(2.0 * np.sqrt(e * (2.0 - e * ak) / ak), max_step)
+    return max_step
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _forward_steps(e, kappa, max_step):
+    """:func:`forward_step_one` over flat arrays."""
+    out = np.empty(e.size)
+    for i in range(e.size):
+        out[i] = forward_step_one(e[i], kappa[i], max_step[i])
+    return out
 
 
 def _det(E, F, G):

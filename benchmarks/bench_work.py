@@ -10,12 +10,14 @@ one process and one run (the host is shared and noisy: each figure is the lowest
   calling thread, :func:`conformill.passes.threads_can_overlap` being false): CPU seconds
   and the report's stage timings;
 * **reference**: the drop kernel alone on a fixed set of points (the cutter's and the
-  pencil's hottest step), on one thread and on all: its speed-up is what the cores give
-  this code when nothing else runs;
+  pencil's hottest step), on one thread and on all (the lowest of ``max(--plans, 2)``
+  runs each): its speed-up in wall time is what the cores give this code when nothing else
+  runs;
 * **plan**: the same plan on all cores (the pipeline's threads as ``conformill plan`` runs
   them): wall and CPU seconds.
 
-It prints per pattern the work, the *floor* (work / the reference's speed-up), the plan's
+It prints per pattern the work, the *floor* (work / the reference's speed-up: the one-thread
+plan's CPU time is its wall time, but for MKL's threads in the map's solve), the plan's
 wall time and its ratio to the floor (the cost of the threads: waits, overhead, a serial
 tail), the CPU the threads spent beyond the work, and, with ``--raster-s R`` (an
 OpenCAMLib raster time, ``bench_raster.py``), the ratio R / wall and how much less work a

@@ -474,10 +474,13 @@ def test_the_forward_step_is_the_numpy_arithmetic_bit_for_bit():
     kappa[:8] = [0.0, -0.0, np.inf, -np.inf, np.nan, 5e-324, -1e-310, 2.0 / 0.01]
     e = rng.choice([0.001, 0.01, 0.1], 5000)
     cap = rng.choice([0.05, 1.0, 10.0], 5000)
-    for args in ((e, kappa, cap), (0.01, kappa, 10.0), (e, 0.5, cap), (0.01, -0.5, 10.0), (e[:, None], kappa[:7], 1.0)):
+    cases = ((e, kappa, cap), (0.01, kappa, 10.0), (e, 0.5, cap), (0.01, -0.5, 10.0), (e[:, None], kappa[:7], 1.0),
+             (0.01, kappa[:50], np.nan), (0.0, 1.0, -0.0), (-0.0, 1.0, 0.0), (-1.0, kappa[:50], 1.0))
+    for args in cases:
         got, want = forward_step(*args), _forward_step_numpy(*args)
         assert got.shape == want.shape and got.dtype == np.float64
-        np.testing.assert_array_equal(got, want)
+        np.testing.assert_array_equal(got, want)  # (NaN where NaN)
+        np.testing.assert_array_equal(np.signbit(got), np.signbit(want))  # (and -0.0 where -0.0)
 
 
 def _select_forward_numpy(X, kappa, e, max_step, max_rounds=30, e_convex=None):
@@ -546,3 +549,53 @@ def test_the_sample_curvature_is_normal_curvature_bit_for_bit():
     got = S.curvature(d)
     assert np.isnan(want).any() and np.isfinite(want).any()
     np.testing.assert_array_equal(got, want)
+
+
+@pytest.mark.parametrize("repeat", [1, 2, 5])
+def test_the_forward_steps_keep_a_path_start_that_is_repeated(repeat):
+    """Both ends are kept when the path starts (or ends) with repeated points: the numpy
+    steps (up to session 47) lost the first point there."""
+    from conformill.patterns.forward import select_forward
+
+    X = np.vstack([np.zeros((repeat, 3)), np.column_stack([np.linspace(0.1, 30.0, 300), np.zeros((300, 2))]),
+                   np.full((repeat, 3), [30.0, 0.0, 0.0])])
+    idx = select_forward(X, np.zeros(len(X)), 0.01, 10.0)
+    assert idx[0] == 0 and idx[-1] == len(X) - 1
+    assert np.all(np.diff(idx) > 0)
+    assert np.linalg.norm(np.diff(X[idx], axis=0), axis=1).max() <= 10.0
+    same = select_forward(np.zeros((4, 3)), np.zeros(4), 0.01, 10.0)  # one point, four times
+    np.testing.assert_array_equal(same, [0, 3])
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    ({"e": 0.0}, "tolerance must be a positive number"),
+    ({"e": np.nan}, "tolerance must be a positive number"),
+    ({"e_convex": np.nan}, "convex tolerance must be a positive number"),
+    ({"e_convex": -0.01}, "convex tolerance must be a positive number"),
+    ({"max_step": 0.0}, "longest step must be a positive number"),
+    ({"max_step": np.inf}, "longest step must be a positive number"),
+    ({"kappa": np.zeros(1)}, "k curvatures are needed"),
+    ({"kappa": np.zeros(11)}, "k curvatures are needed"),
+    ({"X": np.zeros((10, 2))}, r"shape \(k, 3\)"),
+    ({"X": np.where(np.arange(30).reshape(10, 3) == 13, np.nan, np.arange(30.0).reshape(10, 3))}, "must be finite"),
+])
+def test_the_forward_steps_refuse_what_they_cannot_step(kwargs, match):
+    from conformill.errors import PlanningError
+    from conformill.patterns.forward import select_forward
+
+    args = {"X": np.arange(30.0).reshape(10, 3), "kappa": np.full(10, 0.5), "e": 0.01, "max_step": 1.0,
+            "e_convex": None}
+    args.update(kwargs)
+    with pytest.raises(PlanningError, match=match):
+        select_forward(args["X"], args["kappa"], args["e"], args["max_step"], e_convex=args["e_convex"])
+
+
+def test_the_sample_curvature_broadcasts_one_direction():
+    """One direction for every sample, as :func:`normal_curvature` broadcast it."""
+    from conformill.geometry.differential import normal_curvature
+
+    S, _ = _random_sample(500, seed=5)
+    d = np.array([[0.3, -1.2]])
+    np.testing.assert_array_equal(S.curvature(d), normal_curvature(*S.I.T, *S.II.T, d[:, 0], d[:, 1]))
+    with pytest.raises(ValueError):
+        S.curvature(np.ones((3, 2)))

@@ -59,7 +59,8 @@ class SurfaceSample:
         Positive: the surface curves towards the tool (concave); negative: convex.
         """
         c = np.ascontiguousarray
-        return _curvature_rows(c(self.I, dtype=np.float64), c(self.II, dtype=np.float64), c(d, dtype=np.float64))
+        d = c(np.broadcast_to(np.asarray(d, dtype=np.float64), (len(self.I), 2)))  # (one direction for all)
+        return _curvature_rows(c(self.I, dtype=np.float64), c(self.II, dtype=np.float64), d)
 
     def area_factor(self) -> np.ndarray:
         """sqrt(EG - F^2): surface area per unit domain area."""

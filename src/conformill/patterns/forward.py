@@ -17,9 +17,12 @@ one (``e_convex``).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit
 
+from conformill.errors import PlanningError
 from conformill.planning.steps import forward_step_one
 
 
@@ -93,13 +96,29 @@ def select_forward(X: np.ndarray, kappa: np.ndarray, e: float, max_step: float, 
     -------
     idx : (m,) int64
         Kept sample indices, increasing, including both ends.
+
+    Raises
+    ------
+    PlanningError
+        ``e``, ``e_convex`` or ``max_step`` is not a positive number, ``X`` is not
+        ``(k, 3)`` with one curvature per sample, or a point is not finite.
     """
-    X = np.ascontiguousarray(X, dtype=np.float64)
+    X = np.ascontiguousarray(X, dtype=np.float64)  # (float32 points are measured in float64)
     kappa = np.ascontiguousarray(kappa, dtype=np.float64)
+    for name, v in (("tolerance", e), ("convex tolerance", e if e_convex is None else e_convex),
+                    ("longest step", max_step)):
+        if not (math.isfinite(v) and v > 0):
+            raise PlanningError(f"forward steps: the {name} must be a positive number, got {v}")
+    if X.ndim != 2 or X.shape[1] != 3 or kappa.shape != (len(X),):
+        raise PlanningError(f"forward steps: points of shape (k, 3) and k curvatures are needed, got {X.shape} "
+                            f"and {kappa.shape}")
     if len(X) <= 2:
         return np.arange(len(X), dtype=np.int64)
-    return _select(X, kappa, float(e), np.nan if e_convex is None else float(e_convex), float(max_step),
-                   int(max_rounds))
+    idx = _select(X, kappa, float(e), np.nan if e_convex is None else float(e_convex), float(max_step),
+                  int(max_rounds))
+    if idx.size == 0:
+        raise PlanningError("forward steps: the path's points must be finite")
+    return idx
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -124,6 +143,8 @@ def _select(X, kappa, e, e_convex, max_step, max_rounds):
         dx, dy, dz = X[i + 1, 0] - X[i, 0], X[i + 1, 1] - X[i, 1], X[i + 1, 2] - X[i, 2]
         c += np.sqrt(dx * dx + dy * dy + dz * dz) / min(lf[i], lf[i + 1])
         N[i + 1] = c
+    if not np.isfinite(N[k - 1]):  # a point not finite: the caller says so
+        return np.empty(0, dtype=np.int64)
     m = max(1, int(np.ceil(N[k - 1] - 1e-9)))
     # the last sample at or before each of m + 1 evenly spaced targets keeps every step at
     # or below l_f (linspace's targets: i * (N / m), the last exactly N)
@@ -135,7 +156,8 @@ def _select(X, kappa, e, e_convex, max_step, max_rounds):
         t = N[k - 1] if i == m else i * step + 0.0
         while j < k and N[j] <= t:
             j += 1
-        v = k - 1 if i == m else min(max(j - 1, 0), k - 1)
+        # (the first is the path's start, also where it starts with repeated points)
+        v = k - 1 if i == m else 0 if i == 0 else min(max(j - 1, 0), k - 1)
         if n == 0 or v != idx[n - 1]:
             idx[n] = v
             n += 1

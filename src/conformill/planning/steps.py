@@ -519,7 +519,8 @@ def forward_step_one(e, kappa, max_step):
     ak = abs(kappa)
     if np.isfinite(ak) and ak > 0 and e * ak < 2.0:
         # a subnormal |kappa| overflows to inf, which the cap then bounds
-        return min(2.0 * np.sqrt(e * (2.0 - e * ak) / ak), max_step)
+        w = 2.0 * np.sqrt(e * (2.0 - e * ak) / ak)
+        return w if (w < max_step or w != w) else max_step  # np.minimum: NaN from either, the cap on a tie
     return max_step
 
 

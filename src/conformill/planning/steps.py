@@ -62,7 +62,7 @@ import numpy as np
 from numba import njit
 
 from conformill.errors import JobValueError, PlanningError
-from conformill.geometry.differential import curvature_in
+from conformill.geometry.differential import _flat, curvature_in
 from conformill.types import PathParams
 
 
@@ -509,8 +509,7 @@ def forward_step(e, kappa, max_step):
     """
     args = [np.asarray(a, dtype=np.float64) for a in (e, kappa, max_step)]
     shape = np.broadcast_shapes(*(a.shape for a in args))
-    flat = [np.ascontiguousarray(np.broadcast_to(a, shape)).reshape(-1) for a in args]
-    return _forward_steps(*flat).reshape(shape)
+    return _forward_steps(*(_flat(a, shape) for a in args)).reshape(shape)  # (as normal_curvature broadcasts)
 
 
 @njit(cache=True, nogil=True, inline="always", error_model="numpy")

@@ -4,7 +4,8 @@ For each mesh (turned and scaled to a part in mm by :func:`_common.load_part`) a
 height ``h`` (ball radius ``r``, chord tolerance ``e``), in one run:
 
 * conformill: ``pipeline.plan`` + ``write_gcode`` for ``zigzag``, ``contour`` and
-  ``spiral`` (wall time of both together, after a warm-up plan that loads numba's caches);
+  ``spiral`` (wall time of both together, after a warm-up plan that loads numba's caches),
+  then each again as ``conformill plan`` in a fresh process (the ``cmd s`` column);
 * OpenCAMLib: ``ocl.PathDropCutter`` (ball, ``BallCutter(2 r, ...)``: OCL takes the
   diameter) along a zigzag of straight rows in the XY plane, parallel to the longer
   horizontal extent of the part, written as G-code here (``G21 G90``, ``G0`` to the row
@@ -42,6 +43,12 @@ to LinuxCNC's ``rs274 -g`` when it is installed. Columns:
   all cores; so does OpenCAMLib's PathDropCutter, whose drops run under OpenMP: its CPU
   time is about twice its wall time on 2 cores);
 * ``OCL x``: OpenCAMLib's wall time divided by this program's;
+* ``cmd s`` / ``cmd OCL x``: the same program planned by the command line, ``conformill plan``
+  in a fresh process on the same part (written as a PLY of doubles) with the same options,
+  its whole wall time (Python's start, the imports, numba's cache loads, the read, the plan,
+  the G-code and the exit: what a user timing the command sees), and OpenCAMLib's time over
+  it; the moves are checked to be the same lines as the in-process program's ("-" and a
+  line in the log where they are not);
 * ``CL pts``: points written; ``feed m``: length of the cutting moves (feed moves that do
   not start at the clearance height, i.e. without the plunges), metres;
 * ``len/floor``: feed length over the floor ``integral dA / s_max(x)`` (the shortest
@@ -257,6 +264,51 @@ def _label(pattern):
     return f"conformill {pattern}" + (f" + {PENCIL} pencil" if PENCIL else "")
 
 
+def write_part(mesh, path: Path) -> Path:
+    """The part as a binary PLY with double coordinates (the same floats as ``mesh``, so the
+    command line plans the same part)."""
+    V = np.ascontiguousarray(mesh.V, dtype="<f8")
+    F = np.asarray(mesh.F)
+    rec = np.empty(len(F), dtype=[("n", "u1"), ("f", "<i4", (3,))])
+    rec["n"] = 3
+    rec["f"] = F
+    head = (f"ply\nformat binary_little_endian 1.0\nelement vertex {len(V)}\nproperty double x\n"
+            f"property double y\nproperty double z\nelement face {len(F)}\n"
+            "property list uchar int vertex_indices\nend_header\n")
+    path.write_bytes(head.encode("ascii") + V.tobytes() + rec.tobytes())
+    return path
+
+
+def command_program(part: Path, pattern, r, h, e, path: Path, feed: float = 1000.0) -> float:
+    """Wall time (s) of ``conformill plan`` on ``part`` in a fresh process (start-up, read and
+    exit included: what a user timing the command sees), with the options of
+    :func:`conformill_program`'s job; the program is written to ``path``."""
+    import subprocess
+
+    cmd = [sys.executable, "-m", "conformill", "plan", str(part), "--pattern", pattern, "--tool-radius", repr(r),
+           "--scallop", repr(h), "--tolerance", repr(e), "--feed", repr(feed), "--plunge-feed", repr(feed / 3),
+           "--spacing", SPACING, "--quiet", "-o", str(path)]
+    if SCAN:
+        cmd.append("--scan")
+    elif PENCIL is not None:
+        cmd += ["--pencil", "--pencil-search", PENCIL, "--pencil-density", repr(PENCIL_DENSITY)]
+    t0 = time.perf_counter()
+    p = subprocess.run(cmd, capture_output=True, text=True)
+    wall = time.perf_counter() - t0
+    if p.returncode != 0:
+        raise RuntimeError(f"{' '.join(cmd)} failed ({p.returncode}): {p.stderr.strip()[-500:]}")
+    return wall
+
+
+def same_moves(a: Path, b: Path) -> bool:
+    """Whether two programs hold the same ``G0`` / ``G1`` lines (the header's comments and
+    modes may differ: the command line writes its path control ``G64``)."""
+    def moves(p):
+        return [ln for ln in p.read_text().splitlines() if ln.startswith(("G0 ", "G1 "))]
+
+    return moves(a) == moves(b)
+
+
 def conformill_program(mesh, pattern, r, h, e, path: Path, feed: float = 1000.0):
     from conformill.output.gcode import write_gcode
     from conformill.pipeline import plan
@@ -346,6 +398,21 @@ def run_mesh(name, h, r, e, n_samples, folder: Path, log):
         progs[pat] = (p, res, st, wall, cpu)
         log(f"   {_label(pat)}: {wall:.2f} s wall, {cpu:.2f} s cpu, {st['passes']} passes, "
             f"{st['cut_points']} CL points")
+    # the same programs from the command line, each in a fresh process (after all the
+    # in-process plans: their mesh is the oriented one the pipeline returned)
+    part = write_part(mesh, folder / f"{mesh.name}.ply")
+    for pat, (p, res, st, wall, cpu) in progs.items():
+        q = p.with_name(p.stem + "_cmd.nc")
+        try:
+            cmd_wall = command_program(part, pat, r, h, e, q)
+        except RuntimeError as exc:
+            log(f"   {_label(pat)} from the command line: FAILED {exc}")
+            continue
+        if not same_moves(p, q):
+            log(f"   {_label(pat)} from the command line: NOT the same moves ({q.name})")
+            continue
+        progs[pat] = (p, res, st, wall, cpu, cmd_wall)
+        log(f"   {_label(pat)} from the command line: {cmd_wall:.2f} s wall (the same moves)")
     k1, k2 = _common.principal_curvatures(mesh)
     floor = _common.length_floor(mesh, k1, k2, h, r)
     s, rho = raster_sampling(mesh, k1, k2, r, e)
@@ -367,13 +434,16 @@ def run_mesh(name, h, r, e, n_samples, folder: Path, log):
     log(f"   {n_samples} samples, {interior.sum()} interior, of which {100 * reach_share:.2f} % reachable")
 
     m_ocl = measure(mesh, p_ocl, r, h, e, samples, reach, ras["safe_z"])
-    for pat, (p, res, st, wall, cpu) in progs.items():
+    for pat, (p, res, st, wall, cpu, *cmd) in progs.items():
         m = measure(mesh, p, r, h, e, samples, reach, res.toolpath.safe_z)
+        cmd_wall = cmd[0] if cmd else math.nan
         rows.append({"program": _label(pat), "file": p.name, "wall_s": wall, "cpu_s": cpu,
-                     "cl_points": st["cut_points"], "passes": st["passes"], "ocl_ratio": ras["wall_s"] / wall, **m})
+                     "cl_points": st["cut_points"], "passes": st["passes"], "ocl_ratio": ras["wall_s"] / wall,
+                     "cmd_s": cmd_wall, "cmd_ocl_ratio": ras["wall_s"] / cmd_wall, **m})
         log("   " + fmt_row(rows[-1], h, floor["floor_mm"]))
     rows.append({"program": "OpenCAMLib raster", "file": p_ocl.name, "wall_s": ras["wall_s"], "cpu_s": ras["cpu_s"],
-                 "cl_points": ras["cl_points"], "passes": len(ras["runs"]), "ocl_ratio": 1.0, **m_ocl})
+                 "cl_points": ras["cl_points"], "passes": len(ras["runs"]), "ocl_ratio": 1.0, "cmd_s": math.nan,
+                 "cmd_ocl_ratio": math.nan, **m_ocl})
     log("   " + fmt_row(rows[-1], h, floor["floor_mm"]))
     return {"mesh": mesh.name, "faces": int(mesh.n_faces), "extent_mm": ext, "scale": info["scale"],
             "rotated_deg": info["rotated_deg"], "h": h, "r": r, "e": e, "samples": n_samples,
@@ -389,7 +459,7 @@ def run_mesh(name, h, r, e, n_samples, folder: Path, log):
 
 # ---- tables -----------------------------------------------------------------------------
 
-COLS = ("program", "wall s", "cpu s", "OCL x", "CL pts", "feed m", "len/floor", "p50/h", "p99/h", "p99.9/h",
+COLS = ("program", "wall s", "cpu s", "OCL x", "cmd s", "cmd OCL x", "CL pts", "feed m", "len/floor", "p50/h", "p99/h", "p99.9/h",
         "max/h", "p99.9 reach/h", "p99 reach/h", "excused", "p99.9 tangent/h", "uncut reach %", "p99.9 ball/h", "uncut ball %", ">h %", "uncut %", "gouge um",
         "rapid mm", "rs274")
 
@@ -404,7 +474,7 @@ def _cells(row, h, floor_mm):
         return "inf" if x == math.inf else ("-" if x is None or (isinstance(x, float) and math.isnan(x)) else fmt % x)
 
     return [row["program"], f(row["wall_s"], "%.2f"), f(row["cpu_s"], "%.2f"), f(row["ocl_ratio"], "%.1f"),
-            str(row["cl_points"]), f(row["feed_mm"] / 1000, "%.2f"), f(row["feed_mm"] / floor_mm, "%.2f"),
+            f(row.get("cmd_s"), "%.2f"), f(row.get("cmd_ocl_ratio"), "%.1f"), str(row["cl_points"]), f(row["feed_mm"] / 1000, "%.2f"), f(row["feed_mm"] / floor_mm, "%.2f"),
             f(sc["p50"] / h, "%.3f"), f(sc["p99"] / h, "%.3f"), f(sc["p999"] / h, "%.3f"), f(sc["max"] / h, "%.1f"),
             f(vr["p999"] / h if vr else None, "%.3f"), f(vr["p99"] / h if vr and "p99" in vr else None, "%.3f"),
             str(vr.get("beyond_any_ball", "-")) if vr else "-",

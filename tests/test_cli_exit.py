@@ -1,6 +1,6 @@
 """The command line's end (:func:`conformill.cli.main.main_exit`): the exit code, the
 ``atexit`` handlers and everything printed survive the quick exit that skips the
-interpreter's teardown; a running thread is waited for."""
+interpreter's teardown; a running thread is waited for, and a profiler still writes."""
 
 from __future__ import annotations
 
@@ -61,3 +61,11 @@ main_exit()
     p = _run(code, "--version")
     assert p.returncode == 0, p.stderr
     assert "thread done" in p.stdout and "atexit ran" in p.stdout
+
+
+def test_a_profiler_still_writes_its_results(tmp_path):
+    prof = tmp_path / "out.prof"
+    p = subprocess.run([sys.executable, "-m", "cProfile", "-o", str(prof), "-m", "conformill", "--version"],
+                       capture_output=True, text=True, timeout=300, env=_ENV)
+    assert p.returncode == 0, p.stderr
+    assert prof.stat().st_size > 0

@@ -166,9 +166,10 @@ def main_exit() -> None:  # console-script entry (and ``python -m conformill``)
     Python's teardown collects every object left (numba's type system, scipy's and the
     plan's): 0.2-0.35 s after a plan of the igea scan, a tenth of what starting the command
     costs. By then the command has closed every file it wrote (atomically), so the
-    ``atexit`` handlers run (logging's flush, the warm-up helper's stop, coverage), stdout and
+    ``atexit`` handlers run (logging's flush, the warm-up helper's stop), stdout and
     stderr are flushed and the process ends with ``os._exit``. Where a thread other than the
-    main one still runs, or a flush fails, the usual ``sys.exit`` ends it instead.
+    main one still runs, under a profiler or a tracer, or where a flush fails, the usual
+    ``sys.exit`` ends it instead.
     """
     code = main()
     _exit_now(code)
@@ -176,14 +177,18 @@ def main_exit() -> None:  # console-script entry (and ``python -m conformill``)
 
 def _exit_now(code: int) -> None:
     """``os._exit(code)`` after the ``atexit`` handlers and a flush of stdout and stderr
-    (:func:`main_exit`); ``sys.exit(code)`` where another non-daemon thread runs or a flush fails."""
+    (:func:`main_exit`); ``sys.exit(code)`` where another non-daemon thread runs, a profiler or
+    a tracer is set, or a flush fails."""
     import atexit
     import os
     import threading
 
     others = [t for t in threading.enumerate() if t is not threading.main_thread() and not t.daemon]
     run_exitfuncs = getattr(atexit, "_run_exitfuncs", None)  # (CPython's; elsewhere the usual exit)
-    if others or run_exitfuncs is None:
+    # under a profiler or a tracer (``python -m cProfile``, pyinstrument, coverage, a
+    # debugger) the usual exit: they write their results after the code returns
+    watched = sys.getprofile() is not None or sys.gettrace() is not None
+    if others or run_exitfuncs is None or watched:
         sys.exit(code)
     run_exitfuncs()
     try:

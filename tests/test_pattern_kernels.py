@@ -599,3 +599,41 @@ def test_the_sample_curvature_broadcasts_one_direction():
     np.testing.assert_array_equal(S.curvature(d), normal_curvature(*S.I.T, *S.II.T, d[:, 0], d[:, 1]))
     with pytest.raises(ValueError):
         S.curvature(np.ones((3, 2)))
+
+
+def test_the_surface_builds_the_same_with_the_locator_beside_the_frame():
+    # two numba threads: the locator's grid in a second thread while the frame is fitted;
+    # one thread: one after the other. The same frame and the same locator, bit for bit.
+    import numba
+
+    mesh = synthetic.face_like(seed=5, spacing=2.0, size=60.0)
+    uv = parameterize(mesh, boundary="circle").uv
+    before = numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        one = DomainSurface(mesh.V, mesh.F, uv)
+        numba.set_num_threads(2)
+        two = DomainSurface(mesh.V, mesh.F, uv)
+    finally:
+        numba.set_num_threads(before)
+    for name in ("_ptr", "_items", "_lo", "_inv", "_nx", "_ny", "tol"):
+        np.testing.assert_array_equal(getattr(one.locator, name), getattr(two.locator, name))
+    np.testing.assert_array_equal(one._pack, two._pack)
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_the_frame_error_comes_first_where_the_locator_would_fail_too(threads):
+    import numba
+
+    from conformill.errors import ConformillError
+
+    mesh = synthetic.face_like(seed=5, spacing=4.0, size=40.0)
+    uv = parameterize(mesh, boundary="circle").uv.copy()
+    uv[7] = np.nan  # both the frame and the locator refuse this
+    before = numba.get_num_threads()
+    try:
+        numba.set_num_threads(threads)
+        with pytest.raises(ConformillError, match="surface_frame: 1 vertices with non-finite V or uv"):
+            DomainSurface(mesh.V, mesh.F, uv)
+    finally:
+        numba.set_num_threads(before)

@@ -86,15 +86,28 @@ class DomainSurface:
     Notes
     -----
     Builds the per-vertex frame (:func:`conformill.geometry.differential.surface_frame`)
-    and the point locator once; :meth:`sample` is vectorized over points.
+    and the point locator once; :meth:`sample` is vectorized over points. Where numba may
+    use two or more threads, the locator's grid (one serial kernel that releases the GIL)
+    is built in a second thread while the frame is fitted: the same locator, and the
+    frame's error first where both would fail (620k faces: 0.21 s of the stage's 0.5-0.8 s).
     """
 
     def __init__(self, V: np.ndarray, F: np.ndarray, uv: np.ndarray, frame=None):
+        import numba
+
         self.V = V
         self.F = F
         self.uv = uv
-        self.frame = surface_frame(V, F, uv) if frame is None else frame
-        self.locator = Locator(uv, F)
+        if frame is None and numba.get_num_threads() > 1:
+            from concurrent.futures import ThreadPoolExecutor
+
+            with ThreadPoolExecutor(1, thread_name_prefix="conformill-locator") as pool:
+                built = pool.submit(Locator, uv, F)
+                self.frame = surface_frame(V, F, uv)
+                self.locator = built.result()
+        else:
+            self.frame = surface_frame(V, F, uv) if frame is None else frame
+            self.locator = Locator(uv, F)
         fr = self.frame
         # position, normal, I = (E, F, G), II = (L, M, N) side by side: one gather per evaluation
         self._pack = np.ascontiguousarray(np.column_stack([V, fr.n, fr.E, fr.F, fr.G, fr.L, fr.M, fr.N]),

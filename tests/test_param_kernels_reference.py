@@ -498,37 +498,3 @@ def test_weighted_percentile_matches_the_sort(seed):
 def test_weighted_percentile_without_weight_is_nan():
     assert np.isnan(weighted_percentile(np.arange(3.0), np.zeros(3), 50))
     assert np.isnan(weighted_percentile(np.zeros(0), np.zeros(0), 50))
-
-
-def _face_measures_serial(V, F, uv):
-    """``quality._face_measures`` as it was before session 49 (one pass, one thread), through
-    its own per-face formulas: the per-vertex sums in face order."""
-    from conformill.param.quality import _face_measures
-
-    qc, det, area3, err, _, _ = _face_measures(V, F, uv)
-    n = V.shape[0]
-    num = np.zeros(n)
-    den = np.zeros(n)
-    with np.errstate(divide="ignore"):
-        sig = 1.0 / np.sqrt(np.abs(det))
-    for f in range(F.shape[0]):  # the order of the serial kernel's sums
-        if np.isfinite(sig[f]):
-            for c in range(3):
-                num[F[f, c]] += sig[f] * area3[f]
-                den[F[f, c]] += area3[f]
-    return num, den
-
-
-@pytest.mark.parametrize("name", sorted(MESHES))
-def test_quality_vertex_sums_are_the_serial_ones_bit_for_bit(name):
-    # the faces run in parallel; the per-vertex sums must stay those of one pass in face order
-    from conformill.param.quality import _face_measures
-
-    m = MESHES[name]
-    rng = np.random.default_rng(11)
-    uv = np.ascontiguousarray(m.V[:, :2] + rng.normal(scale=0.8, size=(m.n_vertices, 2)))
-    V, F = np.ascontiguousarray(m.V), np.ascontiguousarray(m.F, dtype=np.int64)
-    _, _, _, _, num, den = _face_measures(V, F, uv)
-    num_ref, den_ref = _face_measures_serial(V, F, uv)
-    np.testing.assert_array_equal(num, num_ref)
-    np.testing.assert_array_equal(den, den_ref)

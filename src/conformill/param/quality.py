@@ -18,7 +18,7 @@ from __future__ import annotations
 import logging
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from conformill.types import Quality
 
@@ -152,14 +152,12 @@ def face_jacobian_singular_values(V: np.ndarray, F: np.ndarray, uv: np.ndarray):
     return s1, s2, det, area3
 
 
-@njit(cache=True, error_model="numpy", parallel=True)
+@njit(cache=True, error_model="numpy")
 def _face_measures(V, F, uv):
     """Per face: QC, det J, 3D area, sigma_f; per corner: angle error (deg); per vertex: sigma.
 
     The formulas of :func:`face_jacobian_singular_values` and
-    :func:`conformill.param.weights.corner_angles`, in one pass without temporaries: the
-    faces in parallel, then the per-vertex sums over the faces in order, one thread (the
-    same sums, bit for bit, as one pass over the faces).
+    :func:`conformill.param.weights.corner_angles`, in one pass without temporaries.
     """
     m = F.shape[0]
     n = V.shape[0]
@@ -167,9 +165,10 @@ def _face_measures(V, F, uv):
     det = np.empty(m)
     area3 = np.empty(m)
     err = np.empty((m, 3))
-    sig_f = np.empty(m)
+    num = np.zeros(n)
+    den = np.zeros(n)
     deg = 180.0 / np.pi
-    for f in prange(m):
+    for f in range(m):
         i0 = F[f, 0]
         i1 = F[f, 1]
         i2 = F[f, 2]
@@ -227,16 +226,11 @@ def _face_measures(V, F, uv):
             kz2 = ux * vy - uy * vx
             ang2 = np.arctan2(np.sqrt(kz2 * kz2), ux * vx + uy * vy)
             err[f, c] = np.abs(ang2 - ang3) * deg
-        sig_f[f] = 1.0 / np.sqrt(np.abs(dj))  # sqrt(area_3D / area_2D)
-    num = np.zeros(n)
-    den = np.zeros(n)
-    for g in range(m):
-        sg = sig_f[g]
-        if np.isfinite(sg):
-            ag = area3[g]
-            for k in range(3):
-                num[F[g, k]] += sg * ag
-                den[F[g, k]] += ag
+        sig = 1.0 / np.sqrt(np.abs(dj))  # sqrt(area_3D / area_2D)
+        if np.isfinite(sig):
+            for c in range(3):
+                num[F[f, c]] += sig * a3
+                den[F[f, c]] += a3
     return qc, det, area3, err, num, den
 
 

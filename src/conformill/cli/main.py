@@ -164,8 +164,8 @@ def main_exit() -> None:  # console-script entry (and ``python -m conformill``)
     """Run :func:`main` and end the process with its exit code, without the interpreter's teardown.
 
     Python's teardown collects every object left (numba's type system, scipy's and the
-    plan's): 0.2-0.35 s after a plan of the igea scan, a tenth of what starting the command
-    costs. By then the command has closed every file it wrote (atomically), so the
+    plan's): 0.2-0.35 s after a plan of the igea scan, where starting the command costs
+    about 1 s. By then the command has closed every file it wrote (atomically), so the
     ``atexit`` handlers run (logging's flush, the warm-up helper's stop), stdout and
     stderr are flushed and the process ends with ``os._exit``. Where a thread other than the
     main one still runs, under a profiler or a tracer, or where a flush fails, the usual

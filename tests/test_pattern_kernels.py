@@ -601,19 +601,17 @@ def test_the_sample_curvature_broadcasts_one_direction():
         S.curvature(np.ones((3, 2)))
 
 
-def test_the_surface_builds_the_same_with_the_locator_beside_the_frame():
+def test_the_surface_builds_the_same_with_the_locator_beside_the_frame(surface):
     # two numba threads: the locator's grid in a second thread while the frame is fitted;
     # one thread: one after the other. The same frame and the same locator, bit for bit.
     import numba
 
-    mesh = synthetic.face_like(seed=5, spacing=2.0, size=60.0)
-    uv = parameterize(mesh, boundary="circle").uv
     before = numba.get_num_threads()
     try:
         numba.set_num_threads(1)
-        one = DomainSurface(mesh.V, mesh.F, uv)
+        one = DomainSurface(surface.V, surface.F, surface.uv)
         numba.set_num_threads(2)
-        two = DomainSurface(mesh.V, mesh.F, uv)
+        two = DomainSurface(surface.V, surface.F, surface.uv)
     finally:
         numba.set_num_threads(before)
     for name in ("_ptr", "_items", "_lo", "_inv", "_nx", "_ny", "tol"):
@@ -622,18 +620,17 @@ def test_the_surface_builds_the_same_with_the_locator_beside_the_frame():
 
 
 @pytest.mark.parametrize("threads", [1, 2])
-def test_the_frame_error_comes_first_where_the_locator_would_fail_too(threads):
+def test_the_frame_error_comes_first_where_the_locator_would_fail_too(surface, threads):
     import numba
 
     from conformill.errors import ConformillError
 
-    mesh = synthetic.face_like(seed=5, spacing=4.0, size=40.0)
-    uv = parameterize(mesh, boundary="circle").uv.copy()
+    uv = surface.uv.copy()
     uv[7] = np.nan  # both the frame and the locator refuse this
     before = numba.get_num_threads()
     try:
         numba.set_num_threads(threads)
         with pytest.raises(ConformillError, match="surface_frame: 1 vertices with non-finite V or uv"):
-            DomainSurface(mesh.V, mesh.F, uv)
+            DomainSurface(surface.V, surface.F, uv)
     finally:
         numba.set_num_threads(before)

@@ -3,6 +3,9 @@ raised in the worker reach the caller."""
 
 from __future__ import annotations
 
+import os
+import sys
+import threading
 import time
 from types import SimpleNamespace
 
@@ -13,7 +16,7 @@ import conformill.pipeline as pipeline
 from conformill.cutter import BallCutter
 from conformill.errors import PlanningError
 from conformill.mesh import synthetic
-from conformill.passes import PassBuilder, threads_can_overlap
+from conformill.passes import BACKGROUND_NICE, PassBuilder, background_priority, serial_caller, threads_can_overlap
 from conformill.patterns.pieces import Piece
 from conformill.pipeline import Job, plan
 
@@ -258,6 +261,72 @@ def test_whole_plan_same_with_and_without_the_worker(monkeypatch):
     assert len(a.toolpath.passes) == len(b.toolpath.passes)
     for p, q in zip(a.toolpath.passes, b.toolpath.passes):
         assert np.array_equal(p, q)
+
+
+def _nice(tid=None):
+    return os.getpriority(os.PRIO_PROCESS, threading.get_native_id() if tid is None else tid)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="per-thread nice values are Linux's")
+def test_background_priority_lowers_only_the_calling_thread():
+    seen = {}
+
+    def work():
+        before = _nice()
+        seen["lowered"] = background_priority()
+        seen["step"] = _nice() - before
+        seen["again"] = background_priority()  # never past 19, never an error
+        seen["capped"] = _nice() <= 19
+
+    main = _nice()
+    t = threading.Thread(target=work)
+    t.start()
+    t.join()
+    assert seen["lowered"] and seen["again"] and seen["capped"]
+    assert seen["step"] == min(BACKGROUND_NICE, 19 - main)
+    assert _nice() == main  # the caller's thread, and so the process's later threads, keep theirs
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="per-thread nice values are Linux's")
+def test_plan_runs_its_workers_lower_and_leaves_the_caller_as_it_was(monkeypatch):
+    if not threads_can_overlap():
+        pytest.skip("numba's threading layer here does not allow two threads")
+    import numba
+
+    import conformill.passes as passes
+
+    seen = []
+    real = passes.background_priority
+
+    def spy():
+        out = real()
+        seen.append((threading.current_thread().name, _nice()))
+        return out
+
+    monkeypatch.setattr(passes, "background_priority", spy)
+    main, nthreads = _nice(), numba.get_num_threads()
+    part = synthetic.freeform_patch(spacing=2.0, jitter=0.3, seed=2)
+    plan(part, Job(pattern="zigzag", tool_radius=R, scallop=0.05, tolerance=0.01, pencil=True))
+    names = sorted(n for n, _ in seen)
+    assert names == ["conformill-cutter", "conformill-pencil"], seen
+    assert all(v == min(main + BACKGROUND_NICE, 19) for _, v in seen), seen
+    assert BACKGROUND_NICE > 0 and (main == 19 or all(v > main for _, v in seen))
+    assert _nice() == main and numba.get_num_threads() == nthreads
+
+
+def test_serial_caller_sets_one_thread_and_restores_it():
+    import numba
+
+    n = numba.get_num_threads()
+    with serial_caller():
+        assert numba.get_num_threads() == 1
+    assert numba.get_num_threads() == n
+    with pytest.raises(RuntimeError):
+        with serial_caller():
+            raise RuntimeError("a stage failed")
+    assert numba.get_num_threads() == n
+    with serial_caller(active=False):
+        assert numba.get_num_threads() == n
 
 
 def _far_piece():

@@ -28,7 +28,7 @@ from numba import njit, prange
 from conformill.errors import PlanningError
 from conformill.patterns.forward import select_forward
 
-__all__ = ["PassBuilder", "threads_can_overlap"]
+__all__ = ["PassBuilder", "threads_can_overlap", "background_priority", "serial_caller"]
 
 log = logging.getLogger(__name__)
 
@@ -60,6 +60,71 @@ def threads_can_overlap() -> bool:
         _touch(np.zeros(2))
         layer = numba.threading_layer()
     return layer in ("tbb", "omp")
+
+
+#: How much lower (``nice`` steps) the background threads run than the caller's thread.
+#: The plan's caller thread runs the serial stages (the map's set-up, the frame, the
+#: pattern stage), which the program waits for; the cutter's worker and the pencil's
+#: search fill whatever the cores leave and are waited for only at the end. With equal
+#: priority the pattern stage got about two thirds of a core (igea contour `--scan`: 3.6 s
+#: against 1.8 s alone); measured in session 50, docs/issue5.md.
+BACKGROUND_NICE = 5
+
+
+def background_priority() -> bool:
+    """Lower the calling thread's scheduling priority by :data:`BACKGROUND_NICE`.
+
+    Linux only, where ``nice`` is a per-thread attribute (``setpriority`` on the thread's
+    id) and threads it starts (numba's OpenMP team) inherit it; elsewhere ``PRIO_PROCESS``
+    with a thread id would name a process, so nothing is done. Raising one's own nice value
+    needs no privilege; a refusal is ignored (only the speed depends on it).
+
+    Returns
+    -------
+    bool
+        Whether the priority was lowered.
+    """
+    import os
+    import sys
+
+    if not sys.platform.startswith("linux") or not hasattr(os, "setpriority"):
+        return False
+    try:
+        tid = threading.get_native_id()
+        os.setpriority(os.PRIO_PROCESS, tid, min(os.getpriority(os.PRIO_PROCESS, tid) + BACKGROUND_NICE, 19))
+    except OSError:
+        return False
+    return True
+
+
+class serial_caller:
+    """Context: the calling thread's numba kernels on one thread (numba's count is per thread).
+
+    For a serial stage that runs while the background threads keep the other cores busy:
+    each parallel kernel it called woke a thread of its own team onto a core that a
+    background thread held, and waited for it. Results do not depend on the thread count.
+    ``active=False`` leaves the count as it is (no background threads).
+    """
+
+    def __init__(self, active: bool = True):
+        self.active = bool(active)
+        self._n = None
+
+    def __enter__(self):
+        if self.active:
+            import numba
+
+            self._n = numba.get_num_threads()
+            numba.set_num_threads(1)
+        return self
+
+    def __exit__(self, *exc):
+        if self._n is not None:
+            import numba
+
+            numba.set_num_threads(self._n)
+            self._n = None
+        return False
 
 
 @njit(cache=True, parallel=True)
@@ -311,6 +376,7 @@ class PassBuilder:
         try:
             import numba
 
+            background_priority()  # before numba's team for this thread is made: it inherits it
             numba.set_num_threads(self._nthreads)
             if not self._cancel:
                 t0 = time.perf_counter()

@@ -1022,6 +1022,9 @@ class BackgroundChains:
         import numba
 
         try:
+            from conformill.passes import background_priority
+
+            background_priority()  # the caller's serial stages first (passes.BACKGROUND_NICE)
             numba.set_num_threads(self._nthreads)
             cutter = self._get_cutter()
             if cutter is None or self._stop.is_set():

@@ -19,7 +19,7 @@ from conformill.errors import JobValueError, PlanningError
 from conformill.geometry.surface import DomainSurface
 from conformill.output.gcode import coolant_on, path_control, tool_number
 from conformill.patterns.family import Planner
-from conformill.passes import PassBuilder, threads_can_overlap
+from conformill.passes import PassBuilder, serial_caller, threads_can_overlap
 from conformill.planning.steps import check_ball_size, check_meetable, check_params, check_resolution, side_interval
 from conformill.types import PENCIL_SEARCHES, Mesh, PathParams, PlanResult, ToolPath
 
@@ -643,7 +643,9 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
                           rise_tol=e_fwd, max_step=job.max_step)
 
         say("frame", 1.0)
-        with timer("pattern"):
+        # the pattern stage is serial: its kernels on this thread alone while the workers
+        # hold the other cores (passes.serial_caller; the same program either way)
+        with timer("pattern"), serial_caller(builder.threaded):
             prog = (lambda f: say("pattern", f))
             adaptive = job.spacing in ("adaptive", "local")
             local = job.spacing == "local"

@@ -25,6 +25,7 @@ import os
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -45,17 +46,32 @@ print(f"HARMONIC {time.perf_counter() - t0:.4f} {uv.shape[0]}")
 
 
 def run_child(cmd):
-    """Wall time (s), peak RSS (MB) and stdout of one subprocess."""
+    """Wall time (s), peak RSS (MB) and stdout of one subprocess.
+
+    The child's pipes are drained while it runs (a child writing more than a pipe holds,
+    64 KB, would otherwise wait for a reader for ever); ``os.wait4`` then gives its own
+    peak RSS, which ``subprocess``'s wait would throw away. A failed child ends the script
+    with its stderr.
+    """
     t0 = time.perf_counter()
     p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    out_r, err_r = p.stdout, p.stderr
+    got = {}
+
+    def drain(name, f):
+        with f:
+            got[name] = f.read()
+
+    readers = [threading.Thread(target=drain, args=(n, f), daemon=True) for n, f in (("out", p.stdout), ("err", p.stderr))]
+    for t in readers:
+        t.start()
     _, status, ru = os.wait4(p.pid, 0)
     wall = time.perf_counter() - t0
-    out, err = out_r.read(), err_r.read()
+    for t in readers:
+        t.join()
     p.returncode = os.waitstatus_to_exitcode(status)
     if p.returncode != 0:
-        raise SystemExit(f"{' '.join(cmd)} failed ({p.returncode}):\n{err}")
-    return wall, ru.ru_maxrss / 1024.0, out
+        raise SystemExit(f"{' '.join(cmd)} failed ({p.returncode}):\n{got.get('err', '')}")
+    return wall, ru.ru_maxrss / 1024.0, got.get("out", "")
 
 
 def main(argv=None):

@@ -341,6 +341,21 @@ def test_the_polygon_limit_is_the_numpy_arithmetic_bit_for_bit():
     np.testing.assert_array_equal(poly.limit(theta[:50600].reshape(-1, 8)), _limit_numpy(poly, theta[:50600]).reshape(-1, 8))
 
 
+def test_the_polygon_limit_s_buckets_keep_the_binary_search_s_edge():
+    # vertex angles bunched in a narrow arc (many to a bucket, most buckets empty) and
+    # directions on every bucket edge and one ulp either side, where rounding may put a
+    # direction in the next bucket
+    rng = np.random.default_rng(3)
+    ang = np.sort(np.concatenate([rng.uniform(1.0, 1.001, 250), rng.uniform(0.0, 2 * np.pi, 50), [0.0]]))
+    uvb = np.column_stack([np.cos(ang), np.sin(ang)])
+    for poly in (domains.BoundaryPolygon(uvb), _polygon(4, b=7)):
+        edges = np.arange(len(poly.ang) + 1) * (domains.TWO_PI / len(poly.ang))
+        theta = np.concatenate([edges, np.nextafter(edges, -np.inf), np.nextafter(edges, np.inf), poly.ang,
+                                np.nextafter(poly.ang, np.inf), np.nextafter(poly.ang, -np.inf),
+                                rng.uniform(-10.0, 10.0, 20000), rng.uniform(0.999, 1.002, 20000)])
+        np.testing.assert_array_equal(poly.limit(theta), _limit_numpy(poly, theta))
+
+
 def _warp(closed, seed=2, m=65, n=33, top=1.0):
     """A random warp table; ``top > 1`` lets the middle levels reach past the far side."""
     rng = np.random.default_rng(seed)

@@ -13,11 +13,10 @@ from conformill.errors import PlanningError
 from conformill.geometry.differential import curvature_in, perpendicular_direction, surface_frame
 from conformill.geometry.locate import Locator, _locate_one
 
-#: Stand-ins for the kept rows of a sample that keeps none (:meth:`DomainSurface.sample`):
-#: column views of a two-row packed array (never read), typed as the kept rows of a real
-#: sample are (an empty or one-row view would count as contiguous), so that one compiled
-#: kernel serves both calls (5.3 s of compiling on a fresh install became 1.7 s).
-_NONE_KEPT = np.zeros((2, 12))
+#: Stand-in for the kept rows of a sample that keeps none (:meth:`DomainSurface.sample`):
+#: a C-contiguous ``(1, 3)`` array (never read), typed as the kept rows of a real sample
+#: are, so that one compiled kernel serves both calls.
+_NONE_KEPT = np.zeros((1, 3))
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -131,63 +130,72 @@ class DomainSurface:
         loc = self.locator
         args = (loc.uv, loc.F, loc._ptr, loc._items, loc._lo, loc._inv, loc._nx, loc._ny, loc.tol * loc.tol,
                 self._pack)
-        face = np.empty(len(P), dtype=np.int64)
-        bary = np.empty((len(P), 3))
-        out = np.empty((len(P), self._pack.shape[1]))
+        k = len(P)
+        face = np.empty(k, dtype=np.int64)
+        bary = np.empty((k, 3))
+        # position, normal, I and II each in an array of its own (C-contiguous: the planner's
+        # kernels read them without copies)
+        xyz, n, I, II = np.empty((k, 3)), np.empty((k, 3)), np.empty((k, 3)), np.empty((k, 3))
         uv = np.empty_like(P)
         if keep is None:
             n0 = _NONE_KEPT
-            kept = (np.empty((0, 2)), np.empty(0, dtype=np.int64), np.empty((0, 3)), n0[:, 0:3], n0[:, 3:6],
-                    n0[:, 6:9], n0[:, 9:12])
-            new = np.ones(len(P), dtype=bool)
+            kept = (np.empty((0, 2)), np.empty(0, dtype=np.int64), np.empty((0, 3)), n0, n0, n0, n0)
+            new = np.ones(k, dtype=bool)
         else:
             new = np.asarray(new, dtype=bool)
-            if new.shape != (len(P),) or len(P) - np.count_nonzero(new) != len(keep.face):
+            if new.shape != (k,) or k - np.count_nonzero(new) != len(keep.face):
                 raise PlanningError(f"sample: {len(keep.face)} kept rows and {np.count_nonzero(new)} new ones "
-                                    f"for {len(P)} points")
-            kept = (keep.uv, keep.face, keep.bary, keep.xyz, keep.n, keep.I, keep.II)
+                                    f"for {k} points")
+            c = np.ascontiguousarray  # (no copy for the samples made here)
+            kept = (c(keep.uv), c(keep.face), c(keep.bary), c(keep.xyz), c(keep.n), c(keep.I), c(keep.II))
         # (serial: the planner samples curves of about a thousand points, thousands of
         # times, where waking numba's threads costs more than the work)
-        _sample_rows(P, new, *kept, *args, uv, face, bary, out)
+        _sample_rows(P, new, *kept, *args, uv, face, bary, xyz, n, I, II)
         bad = np.flatnonzero(face < 0)
         if bad.size:
             raise PlanningError(
                 f"{bad.size} domain point(s) fall outside the parameter mesh, e.g. "
                 f"{uv[bad[0]].round(6).tolist()}"
             )
-        return SurfaceSample(uv=uv, face=face, bary=bary, xyz=out[:, 0:3], n=out[:, 3:6], I=out[:, 6:9],
-                             II=out[:, 9:12])
+        return SurfaceSample(uv=uv, face=face, bary=bary, xyz=xyz, n=n, I=I, II=II)
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _sample_one(q, P, uv, F, ptr, items, lo, inv_cell, nx, ny, tol2, pack, face, bary, out):
+def _sample_one(q, P, uv, F, ptr, items, lo, inv_cell, nx, ny, tol2, pack, face, bary, xyz, n, I, II):
     """Point ``q`` of :meth:`DomainSurface.sample`: located (:func:`conformill.geometry.locate._locate_one`),
-    the packed per-vertex values interpolated barycentrically and the normal (columns 3-5)
-    made unit (NaN row outside the domain). The same arithmetic as ``Locator.locate``,
-    :func:`conformill.geometry.differential.interpolate` and numpy's norm."""
+    the packed per-vertex values (position, normal, I, II: three columns each) interpolated
+    barycentrically and the normal made unit (NaN rows outside the domain). The same
+    arithmetic as ``Locator.locate``, :func:`conformill.geometry.differential.interpolate`
+    and numpy's norm."""
     f, b0, b1, b2 = _locate_one(P[q, 0], P[q, 1], uv, F, ptr, items, lo, inv_cell, nx, ny, tol2)
     face[q] = f
     bary[q, 0] = b0
     bary[q, 1] = b1
     bary[q, 2] = b2
     if f < 0:
-        for j in range(out.shape[1]):
-            out[q, j] = np.nan
+        for c in range(3):
+            xyz[q, c] = np.nan
+            n[q, c] = np.nan
+            I[q, c] = np.nan
+            II[q, c] = np.nan
         return
     a, b, d = F[f, 0], F[f, 1], F[f, 2]
-    for j in range(out.shape[1]):
-        out[q, j] = b0 * pack[a, j] + b1 * pack[b, j] + b2 * pack[d, j]
-    nn = np.sqrt(out[q, 3] * out[q, 3] + out[q, 4] * out[q, 4] + out[q, 5] * out[q, 5])
+    for c in range(3):
+        xyz[q, c] = b0 * pack[a, c] + b1 * pack[b, c] + b2 * pack[d, c]
+        n[q, c] = b0 * pack[a, 3 + c] + b1 * pack[b, 3 + c] + b2 * pack[d, 3 + c]
+        I[q, c] = b0 * pack[a, 6 + c] + b1 * pack[b, 6 + c] + b2 * pack[d, 6 + c]
+        II[q, c] = b0 * pack[a, 9 + c] + b1 * pack[b, 9 + c] + b2 * pack[d, 9 + c]
+    nn = np.sqrt(n[q, 0] * n[q, 0] + n[q, 1] * n[q, 1] + n[q, 2] * n[q, 2])
     if nn < 1e-300:  # (np.maximum: NaN stays NaN)
         nn = 1e-300
-    out[q, 3] /= nn
-    out[q, 4] /= nn
-    out[q, 5] /= nn
+    n[q, 0] /= nn
+    n[q, 1] /= nn
+    n[q, 2] /= nn
 
 
 @njit(cache=True, nogil=True)
 def _sample_rows(P, new, kuv, kface, kbary, kxyz, kn, kI, kII, uv, F, ptr, items, lo, inv_cell, nx, ny, tol2,
-                 pack, uv_out, face, bary, out):
+                 pack, uv_out, face, bary, xyz, n, I, II):
     """:meth:`DomainSurface.sample`: the rows at ``new`` evaluated (:func:`_sample_one`),
     the kept rows copied in order."""
     j = 0
@@ -195,15 +203,15 @@ def _sample_rows(P, new, kuv, kface, kbary, kxyz, kn, kI, kII, uv, F, ptr, items
         if new[q]:
             uv_out[q, 0] = P[q, 0]
             uv_out[q, 1] = P[q, 1]
-            _sample_one(q, P, uv, F, ptr, items, lo, inv_cell, nx, ny, tol2, pack, face, bary, out)
+            _sample_one(q, P, uv, F, ptr, items, lo, inv_cell, nx, ny, tol2, pack, face, bary, xyz, n, I, II)
             continue
         uv_out[q, 0] = kuv[j, 0]
         uv_out[q, 1] = kuv[j, 1]
         face[q] = kface[j]
         for c in range(3):
             bary[q, c] = kbary[j, c]
-            out[q, c] = kxyz[j, c]
-            out[q, 3 + c] = kn[j, c]
-            out[q, 6 + c] = kI[j, c]
-            out[q, 9 + c] = kII[j, c]
+            xyz[q, c] = kxyz[j, c]
+            n[q, c] = kn[j, c]
+            I[q, c] = kI[j, c]
+            II[q, c] = kII[j, c]
         j += 1

@@ -173,12 +173,18 @@ class Segment(Family):
 
 
 @njit(cache=True, nogil=True)
-def _edge_angles(theta, ang, phi):
+def _edge_angles(theta, ang, phi, start):
     """Per direction: the polygon edge it crosses (``j``, edge ``j -> j + 1`` cyclic, from
     the sorted vertex angles ``ang``) and the angle to that edge's normal ``phi[j]``
-    (``theta mod 2 pi`` as ``np.mod``, the edge as ``np.searchsorted(..., side="right") - 1``)."""
+    (``theta mod 2 pi`` as ``np.mod``, the edge as ``np.searchsorted(..., side="right") - 1``).
+
+    ``start[i]`` counts the vertex angles up to ``i * 2 pi / nb`` (``nb + 1`` entries): the
+    search runs between the counts a bucket either side of the direction's own, which
+    hold its answer even where rounding puts it in the next bucket."""
     k = theta.shape[0]
     b = ang.shape[0]
+    nb = start.shape[0] - 1
+    per = nb / TWO_PI
     j = np.empty(k, dtype=np.int64)
     arg = np.empty(k)
     for p in range(k):
@@ -190,6 +196,10 @@ def _edge_angles(theta, ang, phi):
             th = 0.0
         lo = 0
         hi = b
+        if math.isfinite(th) and nb > 0:
+            q = min(max(int(th * per), 0), nb - 1)
+            lo = start[max(q - 1, 0)]
+            hi = start[min(q + 2, nb)]
         while lo < hi:  # first vertex angle above th
             mid = (lo + hi) // 2
             if ang[mid] <= th:
@@ -230,6 +240,9 @@ class BoundaryPolygon:
         order = np.argsort(ang)
         self.ang = ang[order]
         self.pts = uvb[order]
+        # vertex angles up to each of len(ang) equal buckets' edges (_edge_angles' search)
+        self._start = np.searchsorted(self.ang, np.arange(len(self.ang) + 1) * (TWO_PI / max(len(self.ang), 1)),
+                                      side="right").astype(np.int64)
         self.R0 = float(np.max(np.linalg.norm(uvb, axis=1)))
         # each edge j -> j+1 (cyclic) as a line: distance p from the origin, normal angle phi;
         # along direction theta the edge is at p / cos(theta - phi)
@@ -248,7 +261,7 @@ class BoundaryPolygon:
     def limit(self, theta: np.ndarray) -> np.ndarray:
         """Distance from the origin to the polygon along direction ``theta``."""
         theta = np.asarray(theta, dtype=np.float64)
-        j, arg = _edge_angles(np.ascontiguousarray(theta).reshape(-1), self.ang, self._phi)
+        j, arg = _edge_angles(np.ascontiguousarray(theta).reshape(-1), self.ang, self._phi, self._start)
         # (the cosine is numpy's: its bits, not libm's, as the plans have always used)
         t = _edge_distances(np.cos(arg), j, self._p, self._ok, self.R0)
         return t.reshape(theta.shape)

@@ -180,6 +180,58 @@ def test_exact_distance_on_a_closed_curve_measures_both_sides_of_the_seam():
     assert seen > 200
 
 
+def _around_numpy(P, Q, j, closed):
+    """``family._around_vertex`` as numpy computed it (session 49 and before)."""
+    from conformill.patterns.family import _two_segments
+
+    best = _two_segments(P, Q, j, closed)
+    q = len(Q)
+    if closed and q > 2:
+        seam = np.flatnonzero((j == 0) | (j == q - 1))
+        if seam.size:
+            other = np.where(j[seam] == 0, q - 1, 0)
+            best[seam] = np.minimum(best[seam], _two_segments(P[seam], Q, other, closed))
+    return best
+
+
+@pytest.mark.parametrize("closed", [False, True])
+def test_the_compiled_exact_distance_is_numpy_s_bit_for_bit(closed):
+    """The exact distance around a vertex (compiled) against the numpy arithmetic it
+    replaced: random curves of 2 to 300 vertices with repeated vertices (zero-length
+    segments), points near and far, every vertex index (the seam's too), NaN rows."""
+    from conformill.patterns.family import _around_vertex
+
+    # the kernel follows the order of terms numpy's einsum takes on x86-64 (numpy 2): bit
+    # for bit where numpy adds in that order, within rounding where it does not
+    A, B = np.random.default_rng(0).normal(size=(2, 10000, 3))
+    exact = np.array_equal(np.einsum("ij,ij->i", A, B),
+                           (A[:, 0] * B[:, 0] + A[:, 2] * B[:, 2]) + A[:, 1] * B[:, 1])
+    rng = np.random.default_rng(21)
+    n = 0
+    for _ in range(200):
+        q, k = int(rng.integers(2, 300)), int(rng.integers(1, 400))
+        Q = np.cumsum(rng.normal(scale=0.3, size=(q, 3)), axis=0)
+        rep = rng.random(q) < 0.1
+        rep[0] = False
+        Q[rep] = Q[np.flatnonzero(rep) - 1]
+        if closed and q > 2:
+            Q[-1] = Q[0] * (1 + 1e-16)
+        P = Q[rng.integers(0, q, k)] + rng.normal(scale=rng.choice([1e-9, 0.1, 3.0]), size=(k, 3))
+        j = rng.integers(0, q, k)
+        j[: min(k, 3)] = [0, q - 1, q // 2][: min(k, 3)]
+        if k > 5:
+            P[4] = np.nan
+        got = _around_vertex(P, Q, j, closed)
+        want = _around_numpy(P, Q, j, closed)
+        assert np.array_equal(np.isnan(got), np.isnan(want))
+        if exact:
+            assert np.array_equal(got, want, equal_nan=True)
+        else:  # another einsum order: within a few ulps
+            np.testing.assert_allclose(got, want, rtol=1e-14, atol=1e-300)
+        n += k
+    assert n > 30000
+
+
 @pytest.mark.parametrize("max_step", [1.0, 0.1, 0.02])
 def test_plan_meets_the_longest_forward_step(max_step):
     # --max-step below the dense samples' spacing (about 0.36 mm here) was not met: the CC

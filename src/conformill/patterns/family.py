@@ -137,18 +137,76 @@ def _around_vertex(P, Q, j, closed):
     """Distance from each point of ``P`` to the two segments of ``Q`` at its vertex ``j``
     (the vertex itself included). On a closed curve the first and the last sample are
     the same point (up to rounding): at either, the segments on both sides of that
-    point are measured."""
-    best = _two_segments(P, Q, j, closed)
-    q = len(Q)
-    if closed and q > 2:
-        seam = np.flatnonzero((j == 0) | (j == q - 1))
-        if seam.size:
-            other = np.where(j[seam] == 0, q - 1, 0)
-            best[seam] = np.minimum(best[seam], _two_segments(P[seam], Q, other, closed))
+    point are measured. Compiled (:func:`_around_kernel`); :func:`_two_segments` is the
+    numpy arithmetic it follows bit for bit."""
+    if len(Q) == 1:
+        return np.linalg.norm(P - Q[0], axis=1)
+    return _around_kernel(np.ascontiguousarray(P, dtype=np.float64), np.ascontiguousarray(Q, dtype=np.float64),
+                          np.ascontiguousarray(j, dtype=np.int64), bool(closed))
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _nan_min(a, b):
+    """``np.minimum``: NaN if either is."""
+    if a != a or b != b:
+        return np.nan
+    return a if a <= b else b
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _two_segments_one(px, py, pz, Q, jj, closed):
+    """:func:`_two_segments` for one point: its distance to vertex ``jj`` and the segments
+    either side, each as numpy computes it (``einsum``, ``maximum``, ``clip``, ``norm``; the
+    einsum's order of terms is the one numpy 2 takes on x86-64, so that the plans keep their
+    bits there; the test holds the two within an ulp elsewhere)."""
+    q = Q.shape[0]
+    dx, dy, dz = px - Q[jj, 0], py - Q[jj, 1], pz - Q[jj, 2]
+    best = np.sqrt(dx * dx + dy * dy + dz * dz)
+    for lo in (jj - 1, jj):
+        if closed:
+            a = lo % q
+            b = (lo + 1) % q
+        else:
+            if lo < 0 or lo + 1 >= q:
+                continue
+            a = lo
+            b = lo + 1
+        abx, aby, abz = Q[b, 0] - Q[a, 0], Q[b, 1] - Q[a, 1], Q[b, 2] - Q[a, 2]
+        # (numpy's einsum over three terms adds the first and the third, then the second)
+        num = ((px - Q[a, 0]) * abx + (pz - Q[a, 2]) * abz) + (py - Q[a, 1]) * aby
+        den = (abx * abx + abz * abz) + aby * aby
+        if not (den != den or den >= 1e-300):
+            den = 1e-300
+        t = num / den
+        if t < 0.0:
+            t = 0.0
+        elif t > 1.0:
+            t = 1.0
+        ex = px - (Q[a, 0] + t * abx)
+        ey = py - (Q[a, 1] + t * aby)
+        ez = pz - (Q[a, 2] + t * abz)
+        best = _nan_min(best, np.sqrt(ex * ex + ey * ey + ez * ez))
     return best
 
 
+@njit(cache=True, nogil=True)
+def _around_kernel(P, Q, j, closed):
+    """:func:`_around_vertex` for a ``Q`` of two or more vertices."""
+    q = Q.shape[0]
+    out = np.empty(P.shape[0])
+    for i in range(P.shape[0]):
+        px, py, pz = P[i, 0], P[i, 1], P[i, 2]
+        jj = j[i]
+        best = _two_segments_one(px, py, pz, Q, jj, closed)
+        if closed and q > 2 and (jj == 0 or jj == q - 1):
+            best = _nan_min(best, _two_segments_one(px, py, pz, Q, q - 1 if jj == 0 else 0, closed))
+        out[i] = best
+    return out
+
+
 def _two_segments(P, Q, j, closed):
+    """The numpy arithmetic of :func:`_two_segments_one` over many points (the reference
+    the compiled one is tested against)."""
     if len(Q) == 1:
         return np.linalg.norm(P - Q[0], axis=1)
     best = np.linalg.norm(P - Q[j], axis=1)

@@ -54,10 +54,10 @@ def run_child(cmd):
     with its stderr.
     """
     t0 = time.perf_counter()
-    p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     got = {}
 
-    def drain(name, f):
+    def drain(name, f):  # bytes, decoded below: a decoding error cannot lose the output
         with f:
             got[name] = f.read()
 
@@ -69,9 +69,10 @@ def run_child(cmd):
     for t in readers:
         t.join()
     p.returncode = os.waitstatus_to_exitcode(status)
+    out, err = (got.get(n, b"").decode("utf-8", errors="replace") for n in ("out", "err"))
     if p.returncode != 0:
-        raise SystemExit(f"{' '.join(cmd)} failed ({p.returncode}):\n{got.get('err', '')}")
-    return wall, ru.ru_maxrss / 1024.0, got.get("out", "")
+        raise SystemExit(f"{' '.join(cmd)} failed ({p.returncode}):\n{err}")
+    return wall, ru.ru_maxrss / 1024.0, out
 
 
 def main(argv=None):

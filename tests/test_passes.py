@@ -267,8 +267,17 @@ def _nice(tid=None):
     return os.getpriority(os.PRIO_PROCESS, threading.get_native_id() if tid is None else tid)
 
 
+def _omp_or_skip():
+    import numba
+
+    threads_can_overlap()  # runs a parallel kernel if none has: numba picks its layer
+    if numba.threading_layer() != "omp":
+        pytest.skip("the workers are lowered under numba's omp layer only")
+
+
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="per-thread nice values are Linux's")
 def test_background_priority_lowers_only_the_calling_thread():
+    _omp_or_skip()
     seen = {}
 
     def work():
@@ -291,6 +300,7 @@ def test_background_priority_lowers_only_the_calling_thread():
 def test_plan_runs_its_workers_lower_and_leaves_the_caller_as_it_was(monkeypatch):
     if not threads_can_overlap():
         pytest.skip("numba's threading layer here does not allow two threads")
+    _omp_or_skip()
     import numba
 
     import conformill.passes as passes

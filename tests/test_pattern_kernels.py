@@ -356,6 +356,36 @@ def test_the_polygon_limit_s_buckets_keep_the_binary_search_s_edge():
         np.testing.assert_array_equal(poly.limit(theta), _limit_numpy(poly, theta))
 
 
+def _polygon_at(ang):
+    ang = np.asarray(ang, dtype=np.float64)
+    return domains.BoundaryPolygon(np.column_stack([np.cos(ang), np.sin(ang)]))
+
+
+def test_the_polygon_edge_search_is_searchsorted_with_vertices_on_bucket_edges():
+    # vertex angles on the buckets' edges and an ulp or two either side, and one of exactly
+    # 2 pi (np.mod of a tiny negative angle), for vertex counts where nb * (2 pi / nb)
+    # rounds below 2 pi (75, 150, 300): the edge found is numpy's for every direction
+    rng = np.random.default_rng(8)
+    for b in (1, 2, 3, 7, 75, 150, 300):
+        for trial in range(20):
+            edges = np.arange(b) * (domains.TWO_PI / b)
+            ang = edges.copy()
+            for k in range(b):
+                for _ in range(int(rng.integers(0, 3))):
+                    ang[k] = np.nextafter(ang[k], np.inf if rng.random() < 0.5 else -np.inf)
+            ang = np.mod(ang, domains.TWO_PI)
+            poly = _polygon_at(ang)
+            if trial % 2:  # one vertex at exactly 2 pi
+                poly.ang[-1] = domains.TWO_PI
+            cuts = np.arange(b + 1) * (domains.TWO_PI / b)
+            theta = np.concatenate([cuts, np.nextafter(cuts, -np.inf), np.nextafter(cuts, np.inf), poly.ang,
+                                    np.nextafter(poly.ang, np.inf), np.nextafter(poly.ang, -np.inf),
+                                    [-1e-17, -5e-324, -0.0, 0.0, domains.TWO_PI], rng.uniform(-20.0, 20.0, 500)])
+            j, _ = domains._edge_angles(theta, poly.ang, poly._phi, poly._start)
+            want = (np.searchsorted(poly.ang, np.mod(theta, domains.TWO_PI), side="right") - 1) % len(poly.ang)
+            np.testing.assert_array_equal(j, want)
+
+
 def _warp(closed, seed=2, m=65, n=33, top=1.0):
     """A random warp table; ``top > 1`` lets the middle levels reach past the far side."""
     rng = np.random.default_rng(seed)

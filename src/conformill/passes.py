@@ -76,8 +76,11 @@ def background_priority() -> bool:
 
     Linux only, where ``nice`` is a per-thread attribute (``setpriority`` on the thread's
     id) and threads it starts (numba's OpenMP team) inherit it; elsewhere ``PRIO_PROCESS``
-    with a thread id would name a process, so nothing is done. Raising one's own nice value
-    needs no privilege; a refusal is ignored (only the speed depends on it).
+    with a thread id would name a process, so nothing is done. Only under numba's ``omp``
+    layer: ``tbb`` shares one pool of workers among all threads, which keep the nice value
+    of the thread that made them (the plan's own kernels could then run on lowered
+    workers). Raising one's own nice value needs no privilege; a refusal is ignored (only
+    the speed depends on it).
 
     Returns
     -------
@@ -88,6 +91,13 @@ def background_priority() -> bool:
     import sys
 
     if not sys.platform.startswith("linux") or not hasattr(os, "setpriority"):
+        return False
+    import numba
+
+    try:
+        if numba.threading_layer() != "omp":
+            return False
+    except ValueError:  # no parallel kernel has run: the layer is not chosen yet
         return False
     try:
         tid = threading.get_native_id()

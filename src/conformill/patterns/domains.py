@@ -243,6 +243,9 @@ class BoundaryPolygon:
         # vertex angles up to each of len(ang) equal buckets' edges (_edge_angles' search)
         self._start = np.searchsorted(self.ang, np.arange(len(self.ang) + 1) * (TWO_PI / max(len(self.ang), 1)),
                                       side="right").astype(np.int64)
+        # the last edge is 2 pi itself: nb * (2 pi / nb) may round below it, and a vertex
+        # angle of 2 pi (np.mod of a tiny negative angle) must stay inside the last bucket
+        self._start[-1] = len(self.ang)
         self.R0 = float(np.max(np.linalg.norm(uvb, axis=1)))
         # each edge j -> j+1 (cyclic) as a line: distance p from the origin, normal angle phi;
         # along direction theta the edge is at p / cos(theta - phi)

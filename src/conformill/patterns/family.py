@@ -141,6 +141,9 @@ def _around_vertex(P, Q, j, closed):
     numpy arithmetic it follows bit for bit."""
     if len(Q) == 1:
         return np.linalg.norm(P - Q[0], axis=1)
+    j = np.asarray(j)
+    if j.size and (j.min() < 0 or j.max() >= len(Q)):  # (the kernel does not check its indices)
+        raise IndexError(f"vertex index out of range [0, {len(Q)}): {j.min()} .. {j.max()}")
     return _around_kernel(np.ascontiguousarray(P, dtype=np.float64), np.ascontiguousarray(Q, dtype=np.float64),
                           np.ascontiguousarray(j, dtype=np.int64), bool(closed))
 
@@ -158,7 +161,7 @@ def _two_segments_one(px, py, pz, Q, jj, closed):
     """:func:`_two_segments` for one point: its distance to vertex ``jj`` and the segments
     either side, each as numpy computes it (``einsum``, ``maximum``, ``clip``, ``norm``; the
     einsum's order of terms is the one numpy 2 takes on x86-64, so that the plans keep their
-    bits there; the test holds the two within an ulp elsewhere)."""
+    bits there; the test holds the two within rounding elsewhere)."""
     q = Q.shape[0]
     dx, dy, dz = px - Q[jj, 0], py - Q[jj, 1], pz - Q[jj, 2]
     best = np.sqrt(dx * dx + dy * dy + dz * dz)

@@ -180,10 +180,30 @@ def test_exact_distance_on_a_closed_curve_measures_both_sides_of_the_seam():
     assert seen > 200
 
 
+def _two_segments(P, Q, j, closed):
+    """Distance from each point of ``P`` to vertex ``j`` of ``Q`` and the segments either
+    side, in numpy (``family._two_segments_one``'s reference; session 49 and before)."""
+    if len(Q) == 1:
+        return np.linalg.norm(P - Q[0], axis=1)
+    best = np.linalg.norm(P - Q[j], axis=1)
+    q = len(Q)
+    for lo in (j - 1, j):
+        if closed:
+            a, b = Q[lo % q], Q[(lo + 1) % q]
+            ok = np.ones(len(P), dtype=bool)
+        else:
+            ok = (lo >= 0) & (lo + 1 < q)
+            a, b = Q[np.clip(lo, 0, q - 1)], Q[np.clip(lo + 1, 0, q - 1)]
+        ab = b - a
+        t = np.einsum("ij,ij->i", P - a, ab) / np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-300)
+        t = np.clip(t, 0.0, 1.0)
+        d = np.linalg.norm(P - (a + t[:, None] * ab), axis=1)
+        best = np.where(ok, np.minimum(best, d), best)
+    return best
+
+
 def _around_numpy(P, Q, j, closed):
     """``family._around_vertex`` as numpy computed it (session 49 and before)."""
-    from conformill.patterns.family import _two_segments
-
     best = _two_segments(P, Q, j, closed)
     q = len(Q)
     if closed and q > 2:

@@ -137,8 +137,8 @@ def _around_vertex(P, Q, j, closed):
     """Distance from each point of ``P`` to the two segments of ``Q`` at its vertex ``j``
     (the vertex itself included). On a closed curve the first and the last sample are
     the same point (up to rounding): at either, the segments on both sides of that
-    point are measured. Compiled (:func:`_around_kernel`); :func:`_two_segments` is the
-    numpy arithmetic it follows bit for bit."""
+    point are measured. Compiled (:func:`_around_kernel`), with the arithmetic of the numpy
+    form it replaced (``tests/test_patterns.py`` holds the two to the same bits)."""
     if len(Q) == 1:
         return np.linalg.norm(P - Q[0], axis=1)
     j = np.asarray(j)
@@ -158,8 +158,8 @@ def _nan_min(a, b):
 
 @njit(cache=True, nogil=True, inline="always")
 def _two_segments_one(px, py, pz, Q, jj, closed):
-    """:func:`_two_segments` for one point: its distance to vertex ``jj`` and the segments
-    either side, each as numpy computes it (``einsum``, ``maximum``, ``clip``, ``norm``; the
+    """One point's distance to vertex ``jj`` of ``Q`` and to the segments either side, each
+    as numpy computes it (``einsum``, ``maximum``, ``clip``, ``norm``; the
     einsum's order of terms is the one numpy 2 takes on x86-64, so that the plans keep their
     bits there; the test holds the two within rounding elsewhere)."""
     q = Q.shape[0]
@@ -205,28 +205,6 @@ def _around_kernel(P, Q, j, closed):
             best = _nan_min(best, _two_segments_one(px, py, pz, Q, q - 1 if jj == 0 else 0, closed))
         out[i] = best
     return out
-
-
-def _two_segments(P, Q, j, closed):
-    """The numpy arithmetic of :func:`_two_segments_one` over many points (the reference
-    the compiled one is tested against)."""
-    if len(Q) == 1:
-        return np.linalg.norm(P - Q[0], axis=1)
-    best = np.linalg.norm(P - Q[j], axis=1)
-    q = len(Q)
-    for lo in (j - 1, j):
-        if closed:
-            a, b = Q[lo % q], Q[(lo + 1) % q]
-            ok = np.ones(len(P), dtype=bool)
-        else:
-            ok = (lo >= 0) & (lo + 1 < q)
-            a, b = Q[np.clip(lo, 0, q - 1)], Q[np.clip(lo + 1, 0, q - 1)]
-        ab = b - a
-        t = np.einsum("ij,ij->i", P - a, ab) / np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-300)
-        t = np.clip(t, 0.0, 1.0)
-        d = np.linalg.norm(P - (a + t[:, None] * ab), axis=1)
-        best = np.where(ok, np.minimum(best, d), best)
-    return best
 
 
 def curve_distance(P: np.ndarray, Q: np.ndarray, closed: bool = False, window: int = 3) -> np.ndarray:

@@ -28,7 +28,7 @@ from numba import njit, prange
 from conformill.errors import PlanningError
 from conformill.patterns.forward import select_forward
 
-__all__ = ["PassBuilder", "threads_can_overlap", "background_priority", "serial_caller"]
+__all__ = ["PassBuilder", "threads_can_overlap", "background_priority", "start_worker", "serial_caller"]
 
 log = logging.getLogger(__name__)
 
@@ -105,6 +105,16 @@ def background_priority() -> bool:
     except OSError:
         return False
     return True
+
+
+def start_worker(nthreads: int) -> None:
+    """What a background worker does first, in its own thread: lower its priority
+    (:func:`background_priority`), then take the caller's numba thread count (numba's is per
+    thread), so that the team numba makes for this thread inherits the lower priority."""
+    import numba
+
+    background_priority()
+    numba.set_num_threads(nthreads)
 
 
 class serial_caller:
@@ -384,10 +394,7 @@ class PassBuilder:
     def _loop(self):
         ended = False  # the end marker was taken from the queue
         try:
-            import numba
-
-            background_priority()  # before numba's team for this thread is made: it inherits it
-            numba.set_num_threads(self._nthreads)
+            start_worker(self._nthreads)
             if not self._cancel:
                 t0 = time.perf_counter()
                 self.cutter = self._make_cutter()  # its index, while the map is solved

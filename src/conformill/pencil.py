@@ -1019,13 +1019,10 @@ class BackgroundChains:
     def _run(self):
         import time
 
-        import numba
-
         try:
-            from conformill.passes import background_priority
+            from conformill.passes import start_worker
 
-            background_priority()  # the caller's serial stages first (passes.BACKGROUND_NICE)
-            numba.set_num_threads(self._nthreads)
+            start_worker(self._nthreads)  # the caller's serial stages first (passes.BACKGROUND_NICE)
             cutter = self._get_cutter()
             if cutter is None or self._stop.is_set():
                 return

@@ -386,6 +386,26 @@ def test_the_polygon_edge_search_is_searchsorted_with_vertices_on_bucket_edges()
             np.testing.assert_array_equal(j, want)
 
 
+def test_the_edge_angle_is_numpy_s_mod_bit_for_bit_at_the_borders_of_its_short_cut():
+    # within one turn either side of [0, 2 pi) the kernel takes x or x + 2 pi instead of
+    # fmod: the same bits as np.mod, signed zeros and the turn's ends one ulp either side
+    # included, and beyond them (fmod) as before
+    poly = _polygon(5, b=150)
+    T = domains.TWO_PI
+    ends = np.array([0.0, T, -T, 2 * T, -2 * T, 3 * T])
+    rng = np.random.default_rng(9)
+    theta = np.concatenate([ends, np.nextafter(ends, np.inf), np.nextafter(ends, -np.inf), [-0.0, 5e-324, -5e-324, -1e-17,
+                            np.inf, -np.inf, np.nan, 1e300, -1e300], rng.uniform(-3 * T, 3 * T, 20000)])
+    j, arg = domains._edge_angles(theta, poly.ang, poly._phi, poly._start)
+    th = np.mod(theta, T)
+    want_j = (np.searchsorted(poly.ang, th, side="right") - 1) % len(poly.ang)
+    ok = np.isfinite(theta)  # (for inf and NaN numpy's searchsorted and the kernel's search differ; the arg is NaN)
+    np.testing.assert_array_equal(j[ok], want_j[ok])
+    want = th - poly._phi[j]
+    assert np.array_equal(arg.view(np.int64)[ok], want.view(np.int64)[ok])
+    assert np.all(np.isnan(arg[~ok]))
+
+
 def _warp(closed, seed=2, m=65, n=33, top=1.0):
     """A random warp table; ``top > 1`` lets the middle levels reach past the far side."""
     rng = np.random.default_rng(seed)

@@ -4,8 +4,11 @@ import numpy as np
 import pytest
 
 from conformill.patterns.domains import BoundaryPolygon
-from conformill.patterns.family import curve_distance, point_polyline_distance
+from conformill.geometry.closest import segment_d2
+from conformill.patterns.family import _wrap, curve_distance, point_polyline_distance
 from conformill.patterns.forward import chord_deviation, select_forward
+
+from numba import njit
 
 
 def test_point_polyline_distance_matches_brute_force():
@@ -276,3 +279,112 @@ def test_select_forward_caps_the_chords():
         st = np.diff(X[idx, 0])
         assert idx[0] == 0 and idx[-1] == 99
         assert st.max() <= max(ms, 0.3) + 1e-9
+
+
+@njit(cache=False, nogil=True)
+def _walk_unbounded(P, Q, closed, window):
+    """``family._walk_distance`` before session 51, which measured every segment of the
+    window: the reference for the bound that skips the far ones."""
+    k, q = P.shape[0], Q.shape[0]
+    out = np.empty(k)
+    # the middle point: exhaustive; then walk to the end, and from the middle to the start
+    # (two neighbouring revolutions of a spiral meet at their ends, where a walk begun at
+    # the first point would follow the wrong one)
+    mid = k // 2
+    j0 = 0
+    best = np.inf
+    for m in range(q):
+        d = (P[mid, 0] - Q[m, 0]) ** 2 + (P[mid, 1] - Q[m, 1]) ** 2 + (P[mid, 2] - Q[m, 2]) ** 2
+        if d < best:
+            best, j0 = d, m
+    j = j0
+    for n in range(k):
+        if n == k - mid:
+            j = j0
+        i = mid + n if n < k - mid else k - 1 - n
+        px, py, pz = P[i, 0], P[i, 1], P[i, 2]
+        # walk along Q from the previous nearest vertex, then look a window around it
+        best = (px - Q[j, 0]) ** 2 + (py - Q[j, 1]) ** 2 + (pz - Q[j, 2]) ** 2
+        moved = True
+        while moved:
+            moved = False
+            for step in (-1, 1):
+                m = j + step
+                if closed:
+                    m = _wrap(m, q)
+                elif m < 0 or m >= q:
+                    continue
+                d = (px - Q[m, 0]) ** 2 + (py - Q[m, 1]) ** 2 + (pz - Q[m, 2]) ** 2
+                if d < best:
+                    best, j, moved = d, m, True
+        c = j
+        for off in range(-window, window + 1):
+            m = c + off
+            if closed:
+                m = _wrap(m, q)
+            elif m < 0 or m >= q:
+                continue
+            d = (px - Q[m, 0]) ** 2 + (py - Q[m, 1]) ** 2 + (pz - Q[m, 2]) ** 2
+            if d < best:
+                best, j = d, m
+        # the segments around the window's vertices
+        dmin = best
+        for off in range(-window, window + 1):
+            a = j + off
+            b = a + 1
+            if closed:
+                a = _wrap(a, q)
+                b = _wrap(b, q)
+            elif a < 0 or b >= q:
+                continue
+            d = segment_d2(px, py, pz, Q[a, 0], Q[a, 1], Q[a, 2], Q[b, 0], Q[b, 1], Q[b, 2])
+            if d < dmin:
+                dmin = d
+        out[i] = np.sqrt(dmin)
+    return out
+
+
+
+def _walk_cases():
+    rng = np.random.default_rng(11)
+    for closed in (False, True):
+        for q, k in ((900, 700), (400, 400), (60, 900)):
+            t = np.sort(rng.random(q)) * 2 * np.pi
+            Q = np.column_stack([30 * np.cos(t), 30 * np.sin(t), 2 * np.sin(3 * t)])
+            t2 = np.sort(rng.random(k)) * 2 * np.pi
+            P = np.column_stack([31 * np.cos(t2), 31 * np.sin(t2), 2 * np.sin(3 * t2) + 0.2])
+            yield P, Q, closed
+            P2 = Q[rng.integers(0, q, k)]  # points on the vertices (distance 0), in no order
+            yield P2, Q, closed
+            Q3 = np.repeat(Q, 2, axis=0)  # every vertex twice (zero-length segments)
+            yield P, Q3, closed
+            P4 = P.copy()
+            P4[::50] = np.nan  # NaN samples and vertices
+            Q4 = Q.copy()
+            Q4[7] = np.nan
+            yield P4, Q4, closed
+    for q in (2, 3, 5, 8):  # closed curves shorter than the window, and scattered points
+        yield rng.normal(size=(40, 3)) * 2.0, rng.normal(size=(q, 3)), True
+        yield rng.normal(size=(40, 3)) * 2.0, rng.normal(size=(q, 3)), False
+    t = np.linspace(0.0, 6 * np.pi, 3000)  # two revolutions of a spiral, apart by 0.3
+    S = np.column_stack([(10 + 0.3 * t / (2 * np.pi)) * np.cos(t), (10 + 0.3 * t / (2 * np.pi)) * np.sin(t), 0 * t])
+    yield S[1000:2000], S[:1000], False
+    yield S[:1000], S[1000:2000], False
+
+
+def test_the_walk_s_segment_bound_leaves_every_distance_bit_for_bit():
+    """The walk skips a window segment whose lower bound (its ends' distance less a quarter
+    of its squared length) is clearly above the nearest so far: the distances are those of
+    the walk that measured them all, to the bit (NaN where it gave NaN), on nearly parallel
+    curves, points on the vertices, doubled vertices, NaN samples and vertices, curves
+    shorter than the window and a spiral's neighbouring revolutions."""
+    from conformill.patterns.family import _walk_distance
+
+    n = 0
+    for P, Q, closed in _walk_cases():
+        for window in (3, 1):
+            want = _walk_unbounded(P, Q, closed, window)
+            got = _walk_distance(P, Q, closed, window)
+            assert np.array_equal(got.view(np.int64), want.view(np.int64)), (len(P), len(Q), closed, window)
+            n += np.count_nonzero(np.isfinite(got))
+    assert n > 20000

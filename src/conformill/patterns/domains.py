@@ -188,12 +188,20 @@ def _edge_angles(theta, ang, phi, start):
     j = np.empty(k, dtype=np.int64)
     arg = np.empty(k)
     for p in range(k):
-        th = np.fmod(theta[p], TWO_PI)
-        if th != 0.0:
-            if th < 0.0:  # (np.mod: the sign of the divisor)
-                th += TWO_PI
+        x = theta[p]
+        # np.fmod is exact, so within one turn either side of [0, 2 pi) it is x itself and
+        # the sum below is the one np.mod makes: the same bits without the libm call
+        if 0.0 < x < TWO_PI:
+            th = x
+        elif -TWO_PI < x < 0.0:
+            th = x + TWO_PI
         else:
-            th = 0.0
+            th = np.fmod(x, TWO_PI)
+            if th != 0.0:
+                if th < 0.0:  # (np.mod: the sign of the divisor)
+                    th += TWO_PI
+            else:
+                th = 0.0
         lo = 0
         hi = b
         if math.isfinite(th) and nb > 0:

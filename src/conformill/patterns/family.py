@@ -43,6 +43,12 @@ def _wrap(m, q):
 def _walk_distance(P, Q, closed, window):
     k, q = P.shape[0], Q.shape[0]
     out = np.empty(k)
+    # a quarter of each segment's squared length (segment m -> m + 1, cyclic): its lower bound
+    quarter = np.empty(q)
+    for m in range(q):
+        m1 = m + 1 if m + 1 < q else 0
+        ux, uy, uz = Q[m1, 0] - Q[m, 0], Q[m1, 1] - Q[m, 1], Q[m1, 2] - Q[m, 2]
+        quarter[m] = 0.25 * (ux * ux + uy * uy + uz * uz)
     # the middle point: exhaustive; then walk to the end, and from the middle to the start
     # (two neighbouring revolutions of a spiral meet at their ends, where a walk begun at
     # the first point would follow the wrong one)
@@ -54,6 +60,7 @@ def _walk_distance(P, Q, closed, window):
         if d < best:
             best, j0 = d, m
     j = j0
+    vd = np.empty(2 * window + 2)  # squared distances to the window's vertices (and one more)
     for n in range(k):
         if n == k - mid:
             j = j0
@@ -79,10 +86,26 @@ def _walk_distance(P, Q, closed, window):
             if closed:
                 m = _wrap(m, q)
             elif m < 0 or m >= q:
+                vd[off + window] = np.inf
                 continue
             d = (px - Q[m, 0]) ** 2 + (py - Q[m, 1]) ** 2 + (pz - Q[m, 2]) ** 2
+            vd[off + window] = d
             if d < best:
                 best, j = d, m
+        # where the window did not move the nearest vertex, its distances bound the segments
+        # around it: a segment of length L whose ends lie at squared distance >= e from the
+        # point is at least e - L^2 / 4 from it (the foot of the perpendicular is within L / 2
+        # of an end). A segment whose bound is clearly above the distance so far cannot be the
+        # nearest and is not measured; the rest are, as before, so the minimum is the same.
+        bound = j == c
+        if bound:
+            m = c + window + 1
+            if closed:
+                m = _wrap(m, q)
+            if m < q:
+                vd[2 * window + 1] = (px - Q[m, 0]) ** 2 + (py - Q[m, 1]) ** 2 + (pz - Q[m, 2]) ** 2
+            else:
+                vd[2 * window + 1] = np.inf
         # the segments around the window's vertices
         dmin = best
         for off in range(-window, window + 1):
@@ -93,6 +116,11 @@ def _walk_distance(P, Q, closed, window):
                 b = _wrap(b, q)
             elif a < 0 or b >= q:
                 continue
+            if bound:
+                ea, eb = vd[off + window], vd[off + window + 1]
+                # (margins far above the rounding of either side; NaN is never skipped)
+                if min(ea, eb) - quarter[a] > dmin * (1.0 + 1e-6) + 1e-9 * max(ea, eb):
+                    continue
             d = segment_d2(px, py, pz, Q[a, 0], Q[a, 1], Q[a, 2], Q[b, 0], Q[b, 1], Q[b, 2])
             if d < dmin:
                 dmin = d

@@ -38,16 +38,18 @@ def main(argv=None) -> int:
     ap = _common.scan_job_parser(__doc__, BR.PATTERNS)
     ap.add_argument("--scale", type=float, default=1.0, help="for a mesh file: factor to mm (the 620k mesh: 1400)")
     ap.add_argument("--rings", nargs="*", type=int, default=[1, 2])
+    ap.add_argument("--scan", action="store_true", help="plan with `plan --scan`'s recipe (the fold pencil, hops)")
     args = ap.parse_args(argv)
     if any(k < 1 for k in args.rings):
         ap.error("rings are 1 or more")
     from conformill.geometry import differential as D
-    from conformill.pipeline import Job, plan
+    from conformill.pipeline import SCAN_RECIPE, Job, plan
 
     h, r, e = args.h, args.r, args.e
     mesh, samples = _common.scan_study(args)
-    job = Job(pattern=args.pattern, tool_radius=r, scallop=h, tolerance=e)
-    print(f"{mesh.name}: {mesh.n_faces} faces; {args.pattern}, r = {r:g}, h = {h:g}, e = {e:g}", flush=True)
+    job = Job(pattern=args.pattern, tool_radius=r, scallop=h, tolerance=e, **(SCAN_RECIPE if args.scan else {}))
+    print(f"{mesh.name}: {mesh.n_faces} faces; {args.pattern}{' --scan' if args.scan else ''}, r = {r:g}, "
+          f"h = {h:g}, e = {e:g}", flush=True)
     own = D._fit_1ring
     rows = []
     for k in args.rings:

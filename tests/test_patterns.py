@@ -2,13 +2,12 @@
 
 import numpy as np
 import pytest
+from numba import njit
 
-from conformill.patterns.domains import BoundaryPolygon
 from conformill.geometry.closest import segment_d2
+from conformill.patterns.domains import BoundaryPolygon
 from conformill.patterns.family import _wrap, curve_distance, point_polyline_distance
 from conformill.patterns.forward import chord_deviation, select_forward
-
-from numba import njit
 
 
 def test_point_polyline_distance_matches_brute_force():
@@ -344,7 +343,6 @@ def _walk_unbounded(P, Q, closed, window):
     return out
 
 
-
 def _walk_cases():
     rng = np.random.default_rng(11)
     for closed in (False, True):
@@ -388,3 +386,30 @@ def test_the_walk_s_segment_bound_leaves_every_distance_bit_for_bit():
             assert np.array_equal(got.view(np.int64), want.view(np.int64)), (len(P), len(Q), closed, window)
             n += np.count_nonzero(np.isfinite(got))
     assert n > 20000
+
+
+def test_the_walk_s_segment_bound_keeps_its_margin_where_a_path_doubles_back():
+    """A path that doubles back on itself ((1, y, 0) -> (-1, 0, 0) -> (1, 0, 0)) under a
+    point (0, 0, h): the far segment's bound, 1 + h^2 - 1, is above the nearest distance h^2
+    by less than the rounding of either side. Without the bound's margin the walk skips the
+    segment that is the nearest after rounding and returns another distance (found by a
+    review, session 51); with it, the distances are those of the walk that measured every
+    segment."""
+    from conformill.patterns.family import _walk_distance
+
+    P = np.empty((1, 3))
+    n = 0
+    for h in np.linspace(1e-5, 2e-5, 201):
+        ea = 1.0 + h * h
+        gap = ea - 1.0 - h * h
+        if gap <= 0.0:
+            continue
+        for y0 in 2.0 * np.sqrt(0.5 * gap) * np.linspace(0.5, 1.5, 41):
+            Q = np.array([[1.0, y0, 0.0], [-1.0, 0.0, 0.0], [1.0, 0.0, 0.0]])
+            P[0] = (0.0, 0.0, h)
+            for window in (1, 2, 3):
+                want = _walk_unbounded(P, Q, False, window)
+                got = _walk_distance(P, Q, False, window)
+                assert got.view(np.int64)[0] == want.view(np.int64)[0], (h, y0, window, got[0], want[0])
+                n += 1
+    assert n > 1000

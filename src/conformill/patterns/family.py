@@ -94,8 +94,10 @@ def _walk_distance(P, Q, closed, window):
                 best, j = d, m
         # where the window did not move the nearest vertex, its distances bound the segments
         # around it: a segment of length L whose ends lie at squared distance >= e from the
-        # point is at least e - L^2 / 4 from it (the foot of the perpendicular is within L / 2
-        # of an end). A segment whose bound is clearly above the distance so far cannot be the
+        # point is at least e - L^2 / 4 from it (where the foot of the perpendicular falls
+        # inside, at t along it, the ends are at d^2 + t^2 L^2 and d^2 + (1 - t)^2 L^2, and
+        # one of t, 1 - t is at most 1/2; where it falls outside, the nearest point is an
+        # end). A segment whose bound is clearly above the distance so far cannot be the
         # nearest and is not measured; the rest are, as before, so the minimum is the same.
         bound = j == c
         if bound:
@@ -118,7 +120,10 @@ def _walk_distance(P, Q, closed, window):
                 continue
             if bound:
                 ea, eb = vd[off + window], vd[off + window + 1]
-                # (margins far above the rounding of either side; NaN is never skipped)
+                # (margins far above the rounding of either side, and needed: a path that
+                # doubles back under the point can put a segment's bound above the nearest
+                # distance by less than that rounding, tests/test_patterns.py; NaN is never
+                # skipped)
                 if min(ea, eb) - quarter[a] > dmin * (1.0 + 1e-6) + 1e-9 * max(ea, eb):
                     continue
             d = segment_d2(px, py, pz, Q[a, 0], Q[a, 1], Q[a, 2], Q[b, 0], Q[b, 1], Q[b, 2])

@@ -2,11 +2,9 @@
 
 import numpy as np
 import pytest
-from numba import njit
 
-from conformill.geometry.closest import segment_d2
 from conformill.patterns.domains import BoundaryPolygon
-from conformill.patterns.family import _wrap, curve_distance, point_polyline_distance
+from conformill.patterns.family import curve_distance, point_polyline_distance
 from conformill.patterns.forward import chord_deviation, select_forward
 
 
@@ -280,67 +278,12 @@ def test_select_forward_caps_the_chords():
         assert st.max() <= max(ms, 0.3) + 1e-9
 
 
-@njit(cache=False, nogil=True)
 def _walk_unbounded(P, Q, closed, window):
-    """``family._walk_distance`` before session 51, which measured every segment of the
-    window: the reference for the bound that skips the far ones."""
-    k, q = P.shape[0], Q.shape[0]
-    out = np.empty(k)
-    # the middle point: exhaustive; then walk to the end, and from the middle to the start
-    # (two neighbouring revolutions of a spiral meet at their ends, where a walk begun at
-    # the first point would follow the wrong one)
-    mid = k // 2
-    j0 = 0
-    best = np.inf
-    for m in range(q):
-        d = (P[mid, 0] - Q[m, 0]) ** 2 + (P[mid, 1] - Q[m, 1]) ** 2 + (P[mid, 2] - Q[m, 2]) ** 2
-        if d < best:
-            best, j0 = d, m
-    j = j0
-    for n in range(k):
-        if n == k - mid:
-            j = j0
-        i = mid + n if n < k - mid else k - 1 - n
-        px, py, pz = P[i, 0], P[i, 1], P[i, 2]
-        # walk along Q from the previous nearest vertex, then look a window around it
-        best = (px - Q[j, 0]) ** 2 + (py - Q[j, 1]) ** 2 + (pz - Q[j, 2]) ** 2
-        moved = True
-        while moved:
-            moved = False
-            for step in (-1, 1):
-                m = j + step
-                if closed:
-                    m = _wrap(m, q)
-                elif m < 0 or m >= q:
-                    continue
-                d = (px - Q[m, 0]) ** 2 + (py - Q[m, 1]) ** 2 + (pz - Q[m, 2]) ** 2
-                if d < best:
-                    best, j, moved = d, m, True
-        c = j
-        for off in range(-window, window + 1):
-            m = c + off
-            if closed:
-                m = _wrap(m, q)
-            elif m < 0 or m >= q:
-                continue
-            d = (px - Q[m, 0]) ** 2 + (py - Q[m, 1]) ** 2 + (pz - Q[m, 2]) ** 2
-            if d < best:
-                best, j = d, m
-        # the segments around the window's vertices
-        dmin = best
-        for off in range(-window, window + 1):
-            a = j + off
-            b = a + 1
-            if closed:
-                a = _wrap(a, q)
-                b = _wrap(b, q)
-            elif a < 0 or b >= q:
-                continue
-            d = segment_d2(px, py, pz, Q[a, 0], Q[a, 1], Q[a, 2], Q[b, 0], Q[b, 1], Q[b, 2])
-            if d < dmin:
-                dmin = d
-        out[i] = np.sqrt(dmin)
-    return out
+    """The walk measuring every segment of its window, as before session 51: the reference
+    for the bound that skips the far ones."""
+    from conformill.patterns.family import _walk_distance
+
+    return _walk_distance(P, Q, closed, window, False)
 
 
 def _walk_cases():
@@ -382,7 +325,7 @@ def test_the_walk_s_segment_bound_leaves_every_distance_bit_for_bit():
     for P, Q, closed in _walk_cases():
         for window in (3, 1):
             want = _walk_unbounded(P, Q, closed, window)
-            got = _walk_distance(P, Q, closed, window)
+            got = _walk_distance(P, Q, closed, window, True)
             assert np.array_equal(got.view(np.int64), want.view(np.int64)), (len(P), len(Q), closed, window)
             n += np.count_nonzero(np.isfinite(got))
     assert n > 20000
@@ -409,7 +352,7 @@ def test_the_walk_s_segment_bound_keeps_its_margin_where_a_path_doubles_back():
             P[0] = (0.0, 0.0, h)
             for window in (1, 2, 3):
                 want = _walk_unbounded(P, Q, False, window)
-                got = _walk_distance(P, Q, False, window)
+                got = _walk_distance(P, Q, False, window, True)
                 assert got.view(np.int64)[0] == want.view(np.int64)[0], (h, y0, window, got[0], want[0])
                 n += 1
     assert n > 1000

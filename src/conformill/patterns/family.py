@@ -40,7 +40,10 @@ def _wrap(m, q):
 
 
 @njit(cache=True, nogil=True)
-def _walk_distance(P, Q, closed, window):
+def _walk_distance(P, Q, closed, window, bounded):
+    """Distance from each point of ``P`` to the polyline ``Q`` (:func:`curve_distance`).
+    ``bounded``: skip the window's segments that cannot be the nearest (the same bits as
+    measuring them all, which ``bounded=False`` does: the tests' reference)."""
     k, q = P.shape[0], Q.shape[0]
     out = np.empty(k)
     # a quarter of each segment's squared length (segment m -> m + 1, cyclic): its lower bound
@@ -99,7 +102,7 @@ def _walk_distance(P, Q, closed, window):
         # one of t, 1 - t is at most 1/2; where it falls outside, the nearest point is an
         # end). A segment whose bound is clearly above the distance so far cannot be the
         # nearest and is not measured; the rest are, as before, so the minimum is the same.
-        bound = j == c
+        bound = bounded and j == c
         if bound:
             m = c + window + 1
             if closed:
@@ -140,11 +143,11 @@ def _walk_both(Pa, Pb, closed, window):
     bwd = np.empty(Pb.shape[0])
     for w in prange(2):
         if w == 0:
-            d = _walk_distance(Pa, Pb, closed, window)
+            d = _walk_distance(Pa, Pb, closed, window, True)
             for i in range(d.shape[0]):
                 fwd[i] = d[i]
         else:
-            d = _walk_distance(Pb, Pa, closed, window)
+            d = _walk_distance(Pb, Pa, closed, window, True)
             for i in range(d.shape[0]):
                 bwd[i] = d[i]
     return fwd, bwd
@@ -254,7 +257,7 @@ def curve_distance(P: np.ndarray, Q: np.ndarray, closed: bool = False, window: i
     Q = np.ascontiguousarray(Q, dtype=np.float64)
     if len(Q) == 1:
         return np.linalg.norm(P - Q[0], axis=1)
-    return _walk_distance(P, Q, bool(closed), int(window))
+    return _walk_distance(P, Q, bool(closed), int(window), True)
 
 
 @njit(cache=True, nogil=True)

@@ -56,8 +56,11 @@ def creases(mesh, r: float, h: float):
 def main(argv=None) -> int:
     import argparse
 
+    import tempfile
+
     from scipy.spatial import cKDTree
 
+    from conformill.verify.gcode import read_gcode
     from conformill.verify.simulate import verify
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -92,11 +95,12 @@ def main(argv=None) -> int:
              for k, m in kinds.items()}
     samples = _common.verify_samples(mesh, args.samples, r)
     rng = np.random.default_rng(0)
-    with __import__("tempfile").TemporaryDirectory() as tmp:
+    with tempfile.TemporaryDirectory() as tmp:
         for pat in args.patterns:
-            res, _, wall, _ = BR.conformill_program(mesh, pat, r, h, e, Path(tmp) / f"{pat}.nc")
-            prog = _common.program_of(res)
-            v = verify(res.mesh, prog, r, samples=samples, scallop=1.05 * h, reach_depth=h, gouge=e,
+            path = Path(tmp) / f"{pat}.nc"
+            res, _, wall, _ = BR.conformill_program(mesh, pat, r, h, e, path)
+            # the program as written, read back (bench_raster.measure)
+            v = verify(res.mesh, read_gcode(path), r, samples=samples, scallop=1.05 * h, reach_depth=h, gouge=e,
                        judge="reachable")
             ok = v.reachable & v.interior
             over = np.flatnonzero(ok & (v.remaining > 1.05 * h))

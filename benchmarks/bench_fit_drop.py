@@ -20,7 +20,8 @@ lowest point of the middle ball, ``C0 - r n``. Then, by mode:
   with ``w_s`` the distance between the two side balls' contact points (the planner spaces
   CC points), 0 where ``w_s < 0.3 w`` (both balls on one ridge: the flat scallop), at most
   ``1/r``; and the final reading per direction is the larger (the wider step) of it and
-  the 1-ring's, so that it only relaxes the fit's convex readings.
+  the 1-ring's (``--combine max``, so that it only relaxes the fit's convex readings) or the
+  smaller (``--combine min``: it only tightens them).
 
 The three directions give the quadratic form; vertices whose middle ball the drop lifts by
 more than ``--lift-max`` h (undercuts, creases: the ball is not where it was aimed) keep the
@@ -32,7 +33,7 @@ plan), the median readings against their exact values: how well each reading is
 conditioned on a mesh finer than the step.
 
     python benchmarks/bench_fit_drop.py [MESH] [--pattern zigzag] [--scan] [--wfrac 0.8]
-        [--lift-max 2] [--check] [--samples 400000]
+        [--lift-max 2] [--combine max|min] [--spacing adaptive|local] [--check] [--samples 400000]
 
 Session 52 (igea, zigzag ``--scan``, w = 0.45 mm): the 1-ring 132.3 m at 1.039 h; the
 balls (read at 41094 of 77981 vertices) 123.7 m at 1.232 h: 7 % shorter, far beyond the
@@ -40,6 +41,10 @@ limit. On the sphere cap ``d2`` reads 0.0219 / mm where 0.0185 is exact (the sca
 of the flat one against 0.926), but ``cc`` reads -0.0002 where -0.02 is exact: the
 contact points snap to the facets (their spacing 0.954 w against 0.926 w), and the part's
 curvature, a small difference of two large numbers, cannot be read back through them.
+With ``--combine min`` under local spacing (igea contour ``--scan``, whose local program
+leaves 1.062 h at 112.5 m) the balls tighten almost nothing (the fit's p1 / p10 readings
+-0.55 / -0.21 / mm become -0.56 / -0.21) and the program leaves 1.076 h at 112.5 m: the
+balls do not find the spots where local spacing fails either.
 """
 
 from __future__ import annotations
@@ -129,9 +134,10 @@ def _forms_in_basis(fr, e1, e2):
     return (a, b, c), (ru, p1, p2)
 
 
-def drop_frame(frame_fn, cutter, w: float, lift_max: float, stats: dict):
+def drop_frame(frame_fn, cutter, w: float, lift_max: float, stats: dict, combine: str = "max"):
     """A ``surface_frame`` that reads ``L, M, N`` from balls (mode ``cc``) where the middle
-    ball lands within ``lift_max`` mm of where it was aimed."""
+    ball lands within ``lift_max`` mm of where it was aimed, combined per direction with the
+    fit's reading: ``max`` (the wider step of the two) or ``min`` (the narrower)."""
     from conformill.types import SurfaceFrame
 
     def frame(V, F, uv):
@@ -141,7 +147,7 @@ def drop_frame(frame_fn, cutter, w: float, lift_max: float, stats: dict):
         e1 = fr.ru / np.linalg.norm(fr.ru, axis=1, keepdims=True)
         (a, b, c), (ru, p1, p2) = _forms_in_basis(fr, e1, np.cross(fr.n, e1))
         own = np.array([a * np.cos(t) ** 2 + 2 * b * np.cos(t) * np.sin(t) + c * np.sin(t) ** 2 for t in _ANGLES])
-        K = np.fmax(cc, own)  # never a narrower step than the fit's
+        K = np.fmax(cc, own) if combine == "max" else np.fmin(cc, own)
         M3 = np.array([[np.cos(t) ** 2, 2 * np.cos(t) * np.sin(t), np.sin(t) ** 2] for t in _ANGLES])
         a2, b2, c2 = np.linalg.solve(M3, np.nan_to_num(K))
         use = np.isfinite(K).all(0) & (lift < lift_max) & np.isfinite(p2) & (np.abs(p2) > 0)
@@ -193,6 +199,9 @@ def main(argv=None) -> int:
     ap.add_argument("--wfrac", type=float, default=0.8, help="w as a share of the flat side interval")
     ap.add_argument("--lift-max", type=float, default=2.0, help="in h: a middle ball lifted more keeps the fit")
     ap.add_argument("--check", action="store_true", help="the sphere cap's readings first")
+    ap.add_argument("--combine", choices=["max", "min"], default="max",
+                    help="per direction, the wider (max) or the narrower (min) step of the balls' and the fit's")
+    ap.add_argument("--spacing", choices=["adaptive", "local"], default="adaptive")
     args = ap.parse_args(argv)
     h, r, e = args.h, args.r, args.e
     if args.check:
@@ -203,14 +212,16 @@ def main(argv=None) -> int:
     from conformill.planning.steps import side_interval
 
     mesh, samples = _common.scan_study(args)
-    job = Job(pattern=args.pattern, tool_radius=r, scallop=h, tolerance=e, **(SCAN_RECIPE if args.scan else {}))
+    job = Job(pattern=args.pattern, tool_radius=r, scallop=h, tolerance=e, spacing=args.spacing,
+              **(SCAN_RECIPE if args.scan else {}))
     w = args.wfrac * float(side_interval(h, r, np.zeros(1))[0][0])
     print(f"{mesh.name}: {mesh.n_faces} faces; {args.pattern}{' --scan' if args.scan else ''}, r = {r:g}, "
-          f"h = {h:g}, e = {e:g}; w = {w:.4f} mm, lift at most {args.lift_max:g} h", flush=True)
+          f"h = {h:g}, e = {e:g}, {args.spacing} spacing; w = {w:.4f} mm, lift at most {args.lift_max:g} h", flush=True)
     own, stats, rows = S.surface_frame, {}, []
-    for name in ("1-ring", "balls (cc)"):
+    for name in ("1-ring", f"balls (cc), {args.combine}"):
         if name != "1-ring":
-            S.surface_frame = drop_frame(own, BallCutter(mesh.V, mesh.F, r), w, args.lift_max * h, stats)
+            S.surface_frame = drop_frame(own, BallCutter(mesh.V, mesh.F, r), w, args.lift_max * h, stats,
+                                         args.combine)
         try:
             t0 = time.perf_counter()
             res = plan(mesh, job)

@@ -47,8 +47,8 @@ def _walk_distance(P, Q, closed, window, bounded):
     k, q = P.shape[0], Q.shape[0]
     out = np.empty(k)
     # a quarter of each segment's squared length (segment m -> m + 1, cyclic): its lower bound
-    quarter = np.empty(q)
-    for m in range(q):
+    quarter = np.empty(q if bounded else 0)
+    for m in range(quarter.shape[0]):
         m1 = m + 1 if m + 1 < q else 0
         ux, uy, uz = Q[m1, 0] - Q[m, 0], Q[m1, 1] - Q[m, 1], Q[m1, 2] - Q[m, 2]
         quarter[m] = 0.25 * (ux * ux + uy * uy + uz * uz)

@@ -28,7 +28,8 @@ more than ``--lift-max`` h (undercuts, creases: the ball is not where it was aim
 1-ring's form. ``w`` is ``--wfrac`` times the flat side interval. Each plan is verified as
 ``bench_raster.py`` verifies (400k samples, seed 0, reachable p99.9, limit 1.05 h).
 
-``--check`` first prints, on a sphere cap of radius 50 mm (icosphere, 0.23 mm edges, no
+``--check`` first prints, on a sphere cap of radius 50 mm (:func:`conformill.mesh.synthetic.sphere_cap`,
+0.24 mm spacing, no
 plan), the median readings against their exact values: how well each reading is
 conditioned on a mesh finer than the step.
 
@@ -37,9 +38,9 @@ conditioned on a mesh finer than the step.
 
 Session 52 (igea, zigzag ``--scan``, w = 0.45 mm): the 1-ring 132.3 m at 1.039 h; the
 balls (read at 41094 of 77981 vertices) 123.7 m at 1.232 h: 7 % shorter, far beyond the
-limit. On the sphere cap ``d2`` reads 0.0219 / mm where 0.0185 is exact (the scallop 0.912
-of the flat one against 0.926), but ``cc`` reads -0.0002 where -0.02 is exact: the
-contact points snap to the facets (their spacing 0.954 w against 0.926 w), and the part's
+limit. On the sphere cap ``d2`` reads 0.0205 / mm where 0.0185 is exact (the scallop about
+0.918 of the flat one against 0.926), but ``cc`` reads -0.0002 where -0.02 is exact: the
+contact points snap to the facets (their spacing, from the two medians, about 0.958 w against 0.926 w), and the part's
 curvature, a small difference of two large numbers, cannot be read back through them.
 With ``--combine min`` under local spacing (igea contour ``--scan``, whose local program
 leaves 1.062 h at 112.5 m) the balls tighten almost nothing (the fit's p1 / p10 readings
@@ -54,35 +55,21 @@ import time
 from pathlib import Path
 
 import numpy as np
-from numba import njit
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _common  # noqa: E402
 import bench_raster as BR  # noqa: E402
 
-from conformill.geometry.closest import closest_on_triangle  # noqa: E402
+from conformill.folds import _contacts  # noqa: E402  (the contact point of each drop)
 
 _ANGLES = np.radians([0.0, 60.0, 120.0])
 
 
-@njit(cache=False)
-def _contacts(C, tri, T):
-    """Contact point of each dropped ball: the point of its contact triangle nearest its centre."""
-    out = np.full((C.shape[0], 3), np.nan)
-    for i in range(C.shape[0]):
-        t = tri[i]
-        if t >= 0:
-            q = closest_on_triangle(C[i, 0], C[i, 1], C[i, 2], T[t, 0], T[t, 1], T[t, 2], T[t, 3], T[t, 4],
-                                    T[t, 5], T[t, 6], T[t, 7], T[t, 8])
-            out[i, 0], out[i, 1], out[i, 2] = q
-    return out
-
-
 def _dropped(cutter, C):
     """Centres ``C`` lowered onto the drop surface and their contact points."""
-    z, tri = cutter._drop(np.ascontiguousarray(C[:, :2]), np.full(len(C), -np.inf))
-    D = np.column_stack([C[:, :2], z])
-    return D, _contacts(np.ascontiguousarray(D), tri, cutter._T)
+    x, y = np.ascontiguousarray(C[:, 0]), np.ascontiguousarray(C[:, 1])
+    z, tri = cutter._drop(np.column_stack([x, y]), np.full(len(C), -np.inf))
+    return np.column_stack([x, y, z]), _contacts(x, y, z, tri, cutter._T)
 
 
 def ball_readings(cutter, V, fr, w: float):
@@ -166,21 +153,14 @@ def drop_frame(frame_fn, cutter, w: float, lift_max: float, stats: dict, combine
 
 def sphere_check(r: float, h: float, wfrac: float) -> None:
     """The readings' medians on a sphere cap of radius 50 mm against their exact values."""
-    import trimesh
-
     from conformill.cutter import BallCutter
     from conformill.geometry.differential import surface_frame
+    from conformill.mesh.synthetic import sphere_cap
     from conformill.param import parameterize
     from conformill.planning.steps import side_interval
-    from conformill.types import Mesh
 
     R = 50.0
-    s = trimesh.creation.icosphere(subdivisions=8, radius=R)
-    F = s.faces[s.triangles_center[:, 2] > 0.93 * R]
-    used = np.unique(F)
-    remap = np.full(len(s.vertices), -1)
-    remap[used] = np.arange(len(used))
-    mesh = Mesh(V=np.asarray(s.vertices[used]), F=remap[F], name="sphere cap")
+    mesh = sphere_cap(R=R, radius_xy=18.4, spacing=0.236)
     fr = surface_frame(mesh.V, mesh.F, parameterize(mesh, boundary="circle").uv)
     w = wfrac * float(side_interval(h, r, np.zeros(1))[0][0])
     d2, cc, _ = ball_readings(BallCutter(mesh.V, mesh.F, r), mesh.V, fr, w)

@@ -22,7 +22,10 @@ length and the time for the knobs that densify the program:
 * ``..., left 0.5``: the same fold pencil cut only through the fold points where the
   pattern's passes left more than 0.5 h (``Job.pencil_left``, ``--pencil-left``; session 31);
 * ``scan`` (``, planned F h``): ``plan --scan`` (:data:`conformill.pipeline.SCAN_RECIPE`,
-  session 35), with the paths spaced for ``F h``;
+  session 35), with the paths spaced for ``F h``; ``scan, no fill``: the recipe of sessions
+  35-52, without the fill stage and with the pattern's paths spaced for h; ``scan, paths
+  for F h``: the recipe with the pattern's paths spaced for ``F h`` (its own: 1.3 h) and
+  the fill (session 53, :mod:`conformill.fill`);
 * ``fine``: the same job on the same surface split once more (every triangle into four at its
   edge midpoints, :func:`conformill.mesh.split.split_midpoints`; a planar split, so the surface and the
   drop-cutter's heights are the same): the per-vertex quadratic fit then works at half the
@@ -99,6 +102,11 @@ from conformill.pipeline import SCAN_RECIPE  # noqa: E402
 
 for _f in (1.0, 0.9, 0.8):
     VARIANTS["scan" if _f == 1.0 else f"scan, planned {_f:g} h"] = (dict(SCAN_RECIPE), _f, False)
+# session 53: the recipe before its fill (the pattern's paths spaced for h, no fill passes:
+# sessions 35-52's --scan), and the fill with the paths spaced for F h
+VARIANTS["scan, no fill"] = ({**SCAN_RECIPE, "fill": None, "pattern_scallop": 1.0}, 1.0, False)
+for _f in (1.0, 1.5):
+    VARIANTS[f"scan, paths for {_f:g} h"] = ({**SCAN_RECIPE, "pattern_scallop": _f}, 1.0, False)
 # session 31: the fold pencil only where the pattern left more than 0.5 h (Job.pencil_left)
 for _name in [n for n in VARIANTS if "pencil folds" in n and "settle" not in n]:
     VARIANTS[f"{_name}, left 0.5"] = ({**VARIANTS[_name][0], "pencil_left": 0.5}, *VARIANTS[_name][1:])

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import pytest
 
 from conformill.cli.main import main
@@ -16,30 +18,33 @@ def _header(path):
 
 def test_help_names_the_recipe(capsys):
     assert main(["plan", "--help"]) == 0
-    text = " ".join(capsys.readouterr().out.split())
+    text = re.sub(r"(\w)- (\w)", r"\1-\2", " ".join(capsys.readouterr().out.split()))  # argparse wraps at hyphens
     said = (f"--pencil --pencil-search {SCAN_RECIPE['pencil_search']} --pencil-left {SCAN_RECIPE['pencil_left']:g} "
-            f"--hop-lifted {SCAN_RECIPE['hop_lift']:g}")
+            f"--hop-lifted {SCAN_RECIPE['hop_lift']:g} --pattern-scallop {SCAN_RECIPE['pattern_scallop']:g} "
+            f"--fill {SCAN_RECIPE['fill']:g}")
     assert SCAN_RECIPE["pencil"] and said in text
 
 
-def test_scan_writes_the_same_bytes_as_its_four_options(tmp_path):
+def test_scan_writes_the_same_bytes_as_its_six_options(tmp_path):
     a, b = tmp_path / "scan.nc", tmp_path / "explicit.nc"
     assert main(COMMON + ["--scan", "-o", str(a)]) == 0
     assert main(COMMON + ["--pencil", "--pencil-search", "folds", "--pencil-left", "0.5", "--hop-lifted", "3",
-                          "-o", str(b)]) == 0
+                          "--pattern-scallop", "1.3", "--fill", "0.7", "-o", str(b)]) == 0
     assert a.read_bytes() == b.read_bytes()
     head = _header(a)
     assert "(param pencil: folds, grid points per mm2 30, where the pattern leaves above 0.5 H)" in head
     assert "(param hop lifted: runs lifted more than 3 mm, rapid 5000)" in head
+    assert "(param fill: where the passes leave above 0.7 H, the pattern's paths spaced for 1.3 H)" in head
 
 
 def test_given_options_win_over_the_recipe(tmp_path):
     out = tmp_path / "p.nc"
     assert main(COMMON + ["--scan", "--pencil-left", "0.8", "--hop-lifted", "0", "--pencil-density", "20",
-                          "-o", str(out)]) == 0
+                          "--pattern-scallop", "1", "--fill", "0.9", "-o", str(out)]) == 0
     head = "\n".join(_header(out))
     assert "(param pencil: folds, grid points per mm2 20, where the pattern leaves above 0.8 H)" in head
     assert "hop" not in head
+    assert "(param fill: where the passes leave above 0.9 H)" in head
 
 
 def test_scan_with_the_sample_search_keeps_every_centre(tmp_path):
@@ -55,13 +60,22 @@ def test_without_scan_nothing_changes(tmp_path):
     out = tmp_path / "p.nc"
     assert main(COMMON + ["-o", str(out)]) == 0
     head = "\n".join(_header(out))
-    assert "pencil" not in head and "hop" not in head
+    assert "pencil" not in head and "hop" not in head and "fill" not in head and "pattern scallop" not in head
 
 
-@pytest.mark.parametrize("opt, value", [("--pencil-left", "-1"), ("--hop-lifted", "nan")])
+@pytest.mark.parametrize("opt, value", [("--pencil-left", "-1"), ("--hop-lifted", "nan"), ("--fill", "0"),
+                                        ("--fill", "inf"), ("--pattern-scallop", "-1")])
 def test_bad_values_beside_scan_exit_2_without_output(tmp_path, capsys, opt, value):
     out = tmp_path / "p.nc"
     assert main(COMMON + ["--scan", opt, value, "-o", str(out)]) == 2
     err = capsys.readouterr().err
     assert "Traceback" not in err and opt.lstrip("-") in err
+    assert not out.exists()
+
+
+def test_wider_paths_without_the_fill_exit_2_without_output(tmp_path, capsys):
+    out = tmp_path / "p.nc"
+    assert main(COMMON + ["--pattern-scallop", "1.3", "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and "pattern-scallop 1.3" in err and "--fill" in err
     assert not out.exists()

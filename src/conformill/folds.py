@@ -49,7 +49,7 @@ searches the samples there one by one.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numba import njit, prange
@@ -94,6 +94,21 @@ class FoldPoints:
     contact_b: np.ndarray
     shadow: np.ndarray
     stats: dict
+    grid: DropGrid | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class DropGrid:
+    """The drop heights of an XY grid: node ``(i, j)`` at ``(x0 + i spacing, y0 + j
+    spacing)`` has the ball's centre height ``z[j * nx + i]`` (``-inf``: the ball touches
+    nothing). The fold search's grid, which the fill stage reuses (:mod:`conformill.fill`)."""
+
+    x0: float
+    y0: float
+    spacing: float
+    nx: int
+    ny: int
+    z: np.ndarray = field(repr=False)
 
 
 def wedge_jump(r: float, depth: float) -> float:
@@ -338,4 +353,5 @@ def fold_points(cutter, spacing: float, jump: float) -> FoldPoints:
     stats = {"grid_points": int(np.count_nonzero(tri >= 0)), "edges": int(len(a)),
              "drops_per_edge": float(out[:, 9].mean()) if len(a) else 0.0, "spacing_mm": float(spacing),
              "jump_mm": float(jump)}
-    return FoldPoints(centres=C, contact_a=qa, contact_b=qb, shadow=depth, stats=stats)
+    return FoldPoints(centres=C, contact_a=qa, contact_b=qb, shadow=depth, stats=stats,
+                      grid=DropGrid(x0=float(lo[0]), y0=float(lo[1]), spacing=float(spacing), nx=nx, ny=ny, z=z))

@@ -754,12 +754,15 @@ class PencilFound:
         The search's spacing (mm): the thinning and chaining lengths scale with it.
     stats : dict
         As :attr:`PencilChains.stats`, without the chains' figures.
+    grid : conformill.folds.DropGrid or None
+        With the fold search, its grid's drop heights (the fill stage reuses them).
     """
 
     centres: np.ndarray
     probes: np.ndarray
     spacing: float
     stats: dict = field(default_factory=dict)
+    grid: object = None
 
     @property
     def probed(self) -> np.ndarray:
@@ -845,7 +848,7 @@ def pencil_search(cutter, V, F, h: float, *, search: str = "samples", density: f
         if stop():
             return None
         return PencilFound(centres=np.vstack([fp.centres[kept], steep]), probes=shadows, spacing=spacing,
-                           stats=stats)
+                           stats=stats, grid=fp.grid)
     if density * area > _MAX_SAMPLES:
         log.warning("pencil: %.0f mm^2 at %.3g samples per mm^2 would be %.3gM samples; using %.3g per mm^2 "
                     "(at most %dM)", area, density, density * area / 1e6, _MAX_SAMPLES / area, _MAX_SAMPLES // 10**6)

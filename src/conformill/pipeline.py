@@ -31,7 +31,8 @@ PATTERNS = ("zigzag", "contour", "spiral")
 #: pattern's passes left more than 0.5 H, and hops over the runs lifted more than 3 mm.
 #: On igea zigzag (r = 4, h = e = 0.01) it left 1.039 h at 22.8-24.0x OpenCAMLib's raster
 #: (session 35; docs/issue5.md and the README's "Issue 5: scale and the raster").
-SCAN_RECIPE = {"pencil": True, "pencil_search": "folds", "pencil_left": 0.5, "hop_lift": 3.0}
+SCAN_RECIPE = {"pencil": True, "pencil_search": "folds", "pencil_left": 0.5, "hop_lift": 3.0, "fill": 0.7,
+               "pattern_scallop": 1.3}
 
 
 @dataclass(frozen=True)
@@ -134,6 +135,16 @@ class Job:
         (docs/issue5.md, "Hops over lifted runs", session 27).
     rapid : float
         The machine's rapid rate (mm/min) the hops are timed at.
+    fill : float or None
+        After the pattern (and the pencil), cut fill passes through the balls that reach
+        the surface samples (30 per mm^2) the passes so far left more than this many ``h``,
+        by the planner's estimate (:mod:`conformill.fill`); None (default): no fill.
+    pattern_scallop : float
+        The pattern's paths are spaced for this many ``h`` (default 1); above 1 only with
+        ``fill``, which brings what the wider paths leave back under ``h``. ``plan --scan``
+        spaces them for 1.3 h and fills above 0.7 h (session 53: on five scans, zigzag, 1-9 %
+        shorter programs, and the two zigzag programs that failed 1.05 h pass;
+        docs/issue5.md, "Session 53").
     blend : float, "off" or None
         The path control the program asks of the controller
         (:func:`conformill.output.gcode.path_control`): stay within this many mm of the
@@ -187,6 +198,8 @@ class Job:
     pencil_left: float | None = None
     hop_lift: float = 0.0
     rapid: float = 5000.0
+    fill: float | None = None
+    pattern_scallop: float = 1.0
     blend: float | str | None = None
     tool_number: int | None = None
     coolant: str | None = None
@@ -292,6 +305,13 @@ def check_job(job: Job, together: bool = True) -> PathParams:
         if not (job.pencil and job.pencil_search == "folds"):
             raise JobValueError("pencil-left keeps fold points: it needs the fold pencil (--pencil --pencil-search "
                                 "folds)")
+    if job.fill is not None and not (np.isfinite(job.fill) and job.fill > 0):
+        raise JobValueError(f"fill must be a positive number (x h), got {job.fill}")
+    if not (np.isfinite(job.pattern_scallop) and job.pattern_scallop > 0):
+        raise JobValueError(f"pattern-scallop must be a positive number (x h), got {job.pattern_scallop}")
+    if job.pattern_scallop > 1.0 and job.fill is None:
+        raise JobValueError(f"pattern-scallop {job.pattern_scallop:g} spaces the paths for more than the scallop: it "
+                            f"needs --fill, which cuts what they leave above it")
     if not (np.isfinite(job.hop_lift) and job.hop_lift >= 0):
         raise JobValueError(f"hop-lifted must be a number >= 0 (mm; 0: off), got {job.hop_lift}")
     if isinstance(job.blend, str) and job.blend != "off":
@@ -639,7 +659,10 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
         seg_len = spacing if fmesh is mesh else _sample_spacing(fmesh, flat_ls, job.max_step)
         sigma = np.median(q.sigma[np.isfinite(q.sigma) & (q.sigma > 0)])
         delta = seg_len / sigma
-        planner = Planner(surface, params, seg_len, concave_cap=flat_ls if job.concave_steps == "flat" else None,
+        # the pattern's paths: spaced for pattern_scallop h (wider only with the fill stage)
+        pparams = params if job.pattern_scallop == 1.0 else replace(params, scallop=job.pattern_scallop * h)
+        check_meetable(pparams)
+        planner = Planner(surface, pparams, seg_len, concave_cap=flat_ls if job.concave_steps == "flat" else None,
                           rise_tol=e_fwd, max_step=job.max_step)
 
         say("frame", 1.0)
@@ -710,6 +733,7 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
         hop_stats = {"lift_mm": job.hop_lift, "hops": builder.n_hops, "cc_points_not_cut": builder.n_hopped,
                      "minutes_saved": builder.hop_saved}
         pencil = None
+        fold_grid = None  # the fold search's grid of drops (conformill.folds.DropGrid)
         if job.pencil:
             from conformill.pencil import LeftToCut, chains_of, link_chains, pencil_chains, pencil_search
 
@@ -730,6 +754,7 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
                         keep = left.keep()
                     found = replace(found, stats={**found.stats, "left_h": float(job.pencil_left),
                                                   "fold_points_cut": int(np.count_nonzero(keep & found.probed))})
+                    fold_grid = found.grid  # the fill stage's balls, when it runs
                     found = chains_of(cutter, found, 1, job.settle * h, keep)
                     pencil = link_chains(cutter, found, e, link_max, start)
                 elif background is not None:
@@ -744,6 +769,20 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
                 passes = passes + [cutter.tip(p) for p in pencil.passes]
                 pass_ids = pass_ids + [-1] * len(pencil.passes)
                 hops = hops + [None] * len(pencil.passes)
+        fill = None
+        if job.fill is not None:
+            from conformill.fill import fill_passes
+
+            say("fill", 0.0)
+            with timer("fill"):
+                cutter = builder.cutter if builder.cutter is not None else BallCutter(mesh.V, mesh.F, r_cut)
+                start = passes[-1][-1, :2] if passes else mesh.V[:, :2].mean(axis=0)
+                fill = fill_passes(cutter, mesh.V, mesh.F, passes, h, depth=job.fill, tol=e, link_max=link_max,
+                                   start_xy=start, settle_tol=job.settle * h, grid=fold_grid,
+                                   progress=lambda f: say("fill", f))
+                passes = passes + [cutter.tip(p) for p in fill.passes]
+                pass_ids = pass_ids + [-1] * len(fill.passes)
+                hops = hops + [None] * len(fill.passes)
     if stock:  # the tips so far are those of the ball of radius r_cut: the ball of radius r is stock higher
         lift = np.array([0.0, 0.0, stock])
         passes = [p + lift for p in passes]
@@ -769,7 +808,8 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
                 "forward_chord_tolerance": e_fwd, "forward_chord_tolerance_convex": e_cvx,
                 "concave_steps": job.concave_steps, "spacing": job.spacing, "settle": job.settle,
                 "fit": job.fit, "pencil": job.pencil, "pencil_density": job.pencil_density,
-                "pencil_search": job.pencil_search, "pencil_left": job.pencil_left,
+                "pencil_search": job.pencil_search, "pencil_left": job.pencil_left, "fill": job.fill,
+                "pattern_scallop": job.pattern_scallop,
                 "blend": "off" if job.blend_tolerance is None else job.blend_tolerance,
                 "tool_number": job.tool_number, "coolant": job.coolant, "spindle": job.spindle, "stock": stock},
         "orientation": orient_info,
@@ -796,6 +836,7 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
                    "settle_unresolved_moves": n_unsettled, "hops": hop_stats,
                    "lift_over_tolerance_share": float(np.mean(lift_all > e)) if lift_all.size else 0.0},
         "pencil": pencil.stats if pencil is not None else None,
+        "fill": fill.stats if fill is not None else None,
         "reachability": {"undercut_share": undercut_share,
                          "concave_below_tool_radius_share": unreach_share, "concave_regions": regions},
         "timings_s": timer.t,

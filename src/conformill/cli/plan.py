@@ -71,12 +71,18 @@ def add_arguments(p) -> None:
                         "the steep walls' centres are all kept): at 0.5, 0-7 %% less feed on the eleven meshes "
                         "measured, the verified scallop within 0.005 H but on one relief (+0.013 H, failing either "
                         "way). Default: every fold point (0.5 with --scan)")
+    p.add_argument("--fill", type=float, default=None, metavar="T",
+                   help="after the pattern (and the pencil), fill passes through the balls that reach the surface "
+                        "samples (30 per mm^2) the passes left more than T H, by the planner's estimate; a sample "
+                        "no ball reaches within 0.5 H is left to the pencil (default: no fill; 0.7 with --scan)")
+    p.add_argument("--pattern-scallop", type=float, default=None, metavar="F",
+                   help="space the pattern's paths for F H (default 1; 1.3 with --scan); above 1 it needs --fill, "
+                        "which cuts what the wider paths leave above T H")
     p.add_argument("--scan", action="store_true",
                    help="settings for a scanned part: --pencil --pencil-search folds --pencil-left 0.5 "
-                        "--hop-lifted 3, each unless given (with --pencil-search samples, no --pencil-left). R4, H "
-                        "0.01: contour and spiral within 1.05 H on the six scans measured; igea zigzag 1.039 H at "
-                        "19-24x OpenCAMLib's raster, against 1.408 H by default; zigzag failed on two scans (1.19 / "
-                        "1.15 H), which passed on a second plan with --replan (1.025 / 1.038 H, 6-8 %% more feed)")
+                        "--hop-lifted 3 --pattern-scallop 1.3 --fill 0.7, each unless given (with --pencil-search "
+                        "samples, no --pencil-left). R4, H 0.01, zigzag: within 1.05 H on the five scans measured, "
+                        "with 1-9 %% less feed than without the last two (session 53)")
     p.add_argument("--hop-lifted", type=float, default=None, metavar="L",
                    help="hop over runs of the path where the drop-cutter lifts the ball more than L mm above "
                         "its planned contact (undercuts, pockets tighter than the ball) where the hop is quicker "
@@ -155,8 +161,14 @@ def _scan_defaults(args) -> None:
             args.pencil_left = SCAN_RECIPE["pencil_left"]
         if args.hop_lifted is None:
             args.hop_lifted = SCAN_RECIPE["hop_lift"]
+        if args.fill is None:
+            args.fill = SCAN_RECIPE["fill"]
+        if args.pattern_scallop is None:
+            args.pattern_scallop = SCAN_RECIPE["pattern_scallop"]
     if args.hop_lifted is None:
         args.hop_lifted = 0.0
+    if args.pattern_scallop is None:
+        args.pattern_scallop = 1.0
 
 
 def run(args) -> int:
@@ -179,7 +191,7 @@ def run(args) -> int:
               concave_steps=args.concave_steps, spacing=args.spacing, settle=args.settle, fit=args.fit,
               pencil=args.pencil, pencil_density=args.pencil_density, hop_lift=args.hop_lifted,
               rapid=args.rapid, pencil_left=args.pencil_left, blend=args.blend, tool_number=args.tool_number,
-              coolant=args.coolant, stock=args.stock,
+              coolant=args.coolant, stock=args.stock, fill=args.fill, pattern_scallop=args.pattern_scallop,
               **({} if args.pencil_search is None else {"pencil_search": args.pencil_search}))
     from conformill.pipeline import check_job
 
@@ -345,6 +357,12 @@ def _header(args, job, result) -> dict:
                             else f"folds, grid points per mm2 {job.pencil_density:g}")
         if job.pencil_left is not None:
             header["pencil"] += f", where the pattern leaves above {job.pencil_left:g} H"
+    if job.fill is not None:  # likewise
+        header["fill"] = (f"where the passes leave above {job.fill:g} H"
+                          + (f", the pattern's paths spaced for {job.pattern_scallop:g} H"
+                             if job.pattern_scallop != 1.0 else ""))
+    elif job.pattern_scallop != 1.0:
+        header["pattern scallop"] = f"{job.pattern_scallop:g} H"
     if job.hop_lift > 0:  # likewise
         header["hop lifted"] = f"runs lifted more than {job.hop_lift:g} mm, rapid {job.rapid:g}"
     if args.holder_radius is not None:  # likewise

@@ -1,0 +1,202 @@
+"""Fill passes where the program's own passes left more than a depth (issue 5, session 53).
+
+The pattern's paths are spaced by the rule of :mod:`conformill.planning.steps` from the
+curvature fitted at each vertex, and a row of a zigzag takes the least step along it. On a
+scan most of a row is then far closer to its neighbour than the scallop needs (on igea the
+verified scallop's median is 0.16 h where its 99.9th percentile is 1.04 h), while a few
+places, which the fit cannot see, need it closer still. This stage measures instead of
+predicting: once the passes are cut, it asks at area-uniform surface samples whether the
+passes came within the depth (:class:`conformill.pattern_rest.UncutRows`, the bound the
+pencil's filter uses: the distance from the sample to the centre moves, less the radius),
+and cuts fill passes through balls that reach the samples they left. With it the pattern's
+paths can be spaced wider (``Job.pattern_scallop``): ``plan --scan`` spaces them for 1.3 h
+and fills where they leave more than 0.7 h.
+
+A sample's ball. Among the balls dropped on an XY grid of the sample spacing (the nodes
+around the sample's tangent ball, 4 x 4), the one whose sphere comes nearest the sample;
+it is kept when it comes within ``give`` (0.5 h) of it. A sample no grid ball reaches that
+close lies in a pocket tighter than the ball, under an overhang or on a steep wall: rest
+that the pencil passes (``Job.pencil``) are for, not the fill. The kept balls are thinned,
+chained, settled, linked and refined as the pencil's centres are
+(:func:`conformill.pencil.chains_of`, :func:`conformill.pencil.link_chains`).
+
+Session 53 (``python benchmarks/bench_tradeoff.py MESH --pattern zigzag --variants "scan, no fill" scan``: the recipe with the paths spaced for
+1.3 h and a fill depth of 0.7 h, against the same recipe without them, r = 4, h = e =
+0.01, the harness's 400k-sample judge): see docs/issue5.md, "Session 53".
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from numba import njit, prange
+
+from conformill.errors import PlanningError
+
+__all__ = ["FILL_GIVE", "FillResult", "fill_passes"]
+
+#: A sample's ball is kept when its sphere comes within this many h of the sample.
+FILL_GIVE = 0.5
+#: Grid nodes per side around a sample's tangent ball among which its ball is chosen.
+_NODES = 4
+
+
+@dataclass(frozen=True)
+class FillResult:
+    """The fill stage's passes (ball centres, linked and refined) and figures.
+
+    Attributes
+    ----------
+    passes : list of (k, 3) float64
+        Ball-centre passes, in cutting order.
+    stats : dict
+        ``samples``, ``reached`` (samples a grid ball comes within the give of), ``balls``
+        (of those, the samples the passes left more than the depth: one ball each, before
+        thinning), ``chains``, ``passes``, ``cl_points``, ``feed_mm``, ``density_per_mm2``,
+        ``depth_h``.
+    """
+
+    passes: list
+    stats: dict = field(default_factory=dict)
+
+
+def _check(h, depth, density):
+    for name, v in (("scallop", h), ("fill depth", depth), ("fill density", density)):
+        if not (math.isfinite(v) and v > 0):
+            raise PlanningError(f"fill: {name} must be a positive number, got {v}")
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _nearest_balls(P, N, r, x0, y0, g, nx, ny, z):
+    """Per sample: the node among the 4 x 4 around its tangent ball's XY whose ball (centre
+    height ``z[node]``, -inf: none) comes nearest the sample, as ``(node, distance of its
+    sphere from the sample)``; ``(-1, inf)`` where none of them has a ball."""
+    k = P.shape[0]
+    node = np.full(k, -1, dtype=np.int64)
+    dist = np.full(k, np.inf)
+    for s in prange(k):
+        tx = P[s, 0] + r * N[s, 0]
+        ty = P[s, 1] + r * N[s, 1]
+        i0 = int(math.floor((tx - x0) / g)) - (_NODES // 2 - 1)
+        j0 = int(math.floor((ty - y0) / g)) - (_NODES // 2 - 1)
+        for dj in range(_NODES):
+            j = min(max(j0 + dj, 0), ny - 1)
+            for di in range(_NODES):
+                i = min(max(i0 + di, 0), nx - 1)
+                c = j * nx + i
+                zc = z[c]
+                if not zc > -np.inf:
+                    continue
+                dx = x0 + g * i - P[s, 0]
+                dy = y0 + g * j - P[s, 1]
+                dz = zc - P[s, 2]
+                d = math.sqrt(dx * dx + dy * dy + dz * dz) - r
+                if d < dist[s]:
+                    dist[s] = d
+                    node[s] = c
+    return node, dist
+
+
+def _grid_balls(cutter, P, N, density, grid=None):
+    """For samples ``P`` (normals ``N``): the ball of the XY grid (spacing ``1 /
+    sqrt(density)`` over the cutter's box) nearest each sample among the 4 x 4 nodes
+    around its tangent ball's XY (:func:`_nearest_balls`), and how far its sphere lies from
+    the sample (mm; inf where no node has a ball). The heights are ``grid``'s (the fold
+    search's :class:`conformill.folds.DropGrid`) when it is that grid; else the grid is
+    dropped here."""
+    from conformill.folds import _grid_box
+
+    r = cutter.radius
+    g = 1.0 / math.sqrt(density)
+    lo, hi = _grid_box(cutter)
+    nx, ny = (int(v) for v in np.ceil((hi - lo) / g) + 1)
+    if grid is not None and grid.spacing == g and (grid.x0, grid.y0) == (float(lo[0]), float(lo[1])) \
+            and (grid.nx, grid.ny) == (nx, ny):
+        z = grid.z
+    else:
+        z = cutter.drop(np.column_stack([np.tile(lo[0] + g * np.arange(nx), ny),
+                                         np.repeat(lo[1] + g * np.arange(ny), nx)]))
+    node, d = _nearest_balls(np.ascontiguousarray(P), np.ascontiguousarray(N), float(r), float(lo[0]),
+                             float(lo[1]), g, nx, ny, np.ascontiguousarray(z, dtype=np.float64))
+    ok = node >= 0
+    C = np.full((len(P), 3), np.nan)
+    C[ok] = np.column_stack([lo[0] + g * (node[ok] % nx), lo[1] + g * (node[ok] // nx), z[node[ok]]])
+    return C, d, g
+
+
+def fill_passes(cutter, V, F, passes, h: float, *, depth: float, tol: float, link_max: float, start_xy,
+                density: float = 30.0, settle_tol: float = 0.0, seed: int = 0, give: float = FILL_GIVE,
+                grid=None, progress=None) -> FillResult:
+    """Fill passes through the balls that reach the surface samples ``passes`` left more
+    than ``depth * h`` (see the module's text).
+
+    Parameters
+    ----------
+    cutter : conformill.cutter.BallCutter
+    V, F : arrays
+        The part.
+    passes : list of (k, 3) float64
+        The tool-tip passes cut so far (the ball is the cutter's: centres ``radius`` above).
+    h : float
+        The scallop height (mm).
+    depth : float
+        Fill where the passes left more than ``depth * h`` (by the distance bound).
+    tol : float
+        The chord tolerance: the fill's moves are refined to cut at most ``tol / 2`` into
+        the part.
+    link_max : float
+        Chains whose ends lie within this (mm) are joined by a straight move.
+    start_xy : (2,) float
+        Where the tool is when the fill starts (the last pass's end).
+    density : float
+        Surface samples per mm^2 (the grid's nodes are as far apart as the samples).
+    settle_tol : float
+        The chains are settled to this float (mm; 0: not).
+    seed : int
+    give : float
+        A ball is kept for a sample when its sphere comes within ``give * h`` of it.
+    grid : conformill.folds.DropGrid, optional
+        The fold search's grid: its heights are used where it is the fill's grid (the same
+        spacing over the same box), with the same balls as dropping them anew.
+    progress : callable, optional
+        ``progress(fraction)``.
+
+    Returns
+    -------
+    FillResult
+
+    Raises
+    ------
+    PlanningError
+        ``h``, ``depth`` or ``density`` is not a positive number.
+    """
+    from conformill.pattern_rest import UncutRows, centre_moves
+    from conformill.pencil import PencilFound, _face_areas, chains_of, link_chains, surface_samples
+
+    _check(h, depth, density)
+    say = progress or (lambda f: None)
+    r = cutter.radius
+    V = np.asarray(V, dtype=np.float64)
+    F = np.asarray(F, dtype=np.int64)
+    P, N, _ = surface_samples(V, F, density, seed, areas=_face_areas(V, F))
+    say(0.1)
+    # the samples a grid ball comes within give of, then those the passes left: the same
+    # balls as the other way round, with the passes' test on fewer samples
+    C, d, g = _grid_balls(cutter, P, N, density, grid)
+    near = np.flatnonzero(d <= give * h)
+    say(0.3)
+    rows = UncutRows(P[near], r, depth * h)
+    rows.add(*centre_moves(passes, r))
+    keep = near[rows.uncut()]
+    say(0.7)
+    found = PencilFound(centres=C[keep], probes=np.full((len(keep), 1, 3), np.nan), spacing=g, stats={})
+    chains = chains_of(cutter, found, 1, settle_tol)
+    out = link_chains(cutter, chains, tol, link_max, start_xy)
+    say(1.0)
+    stats = {"samples": int(len(P)), "reached": int(near.size), "balls": int(len(keep)),
+             "chains": int(chains.stats["chains"]), "passes": int(out.stats["passes"]),
+             "cl_points": int(out.stats["cl_points"]), "feed_mm": float(out.stats["feed_mm"]),
+             "density_per_mm2": float(density), "depth_h": float(depth)}
+    return FillResult(passes=out.passes, stats=stats)

@@ -1,0 +1,128 @@
+"""The fill stage (conformill.fill): passes through the balls that reach what the passes
+left, checked on a plane against the scallop formula, and its refusals."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from conformill.cutter import BallCutter
+from conformill.errors import JobValueError, PlanningError
+from conformill.fill import fill_passes
+from conformill.mesh.synthetic import plane
+from conformill.pattern_rest import UncutRows, centre_moves
+from conformill.pencil import surface_samples
+from conformill.pipeline import Job, check_job
+
+R, H, E = 4.0, 0.01, 0.01
+
+
+def _rows(gap: float, half: float = 8.5):
+    """Tip passes along X over the plane z = 0 (16 mm square), ``gap`` apart in Y, past its
+    rim (tips on the plane's level): between them cusps of ``gap^2 / 8r`` along ``y = k
+    gap``, and nothing else left."""
+    x = np.linspace(-half, half, 86)
+    ys = (np.arange(-int(half / gap) - 1, int(half / gap) + 1) + 0.5) * gap
+    return [np.column_stack([x, np.full_like(x, y), np.zeros_like(x)]) for y in ys]
+
+
+@pytest.fixture(scope="module")
+def flat():
+    m = plane(size=16.0, spacing=0.5)
+    return m, BallCutter(m.V, m.F, R)
+
+
+def _left(m, passes, depth, seed=3, density=30.0):
+    """Samples the passes left more than ``depth`` h, by the distance bound (``seed`` 0:
+    the fill's own samples)."""
+    P, _, _ = surface_samples(m.V, m.F, density, seed=seed)
+    rows = UncutRows(P, R, depth * H)
+    rows.add(*centre_moves(passes, R))
+    return P[rows.uncut()]
+
+
+def test_rows_spaced_for_1_3_h_get_a_fill_pass_along_their_cusp(flat):
+    # on a plane two passes s apart leave s^2 / 8r at the cusp midway: spaced for 1.3 h, the
+    # band where they leave more than 0.7 h is filled, and nothing else is
+    m, cut = flat
+    gap = math.sqrt(8 * R * 1.3 * H)
+    rows = _rows(gap)
+    assert len(_left(m, rows, 0.7)) > 0
+    out = fill_passes(cut, m.V, m.F, rows, H, depth=0.7, tol=E, link_max=8.0, start_xy=rows[-1][-1, :2])
+    assert out.passes and out.stats["balls"] > 0 and out.stats["reached"] > 0
+    tips = np.vstack([cut.tip(p) for p in out.passes])
+    inner = (np.abs(tips[:, 0]) < 5.0) & (np.abs(tips[:, 1]) < 5.0)
+    # over the plane (away from its rim, where a ball hangs over the edge) the ball rests on it
+    np.testing.assert_allclose(tips[inner, 2], 0.0, atol=1e-9)
+    # where the rows are, the fill runs inside the bands along the cusps that the rows left
+    # above 0.7 h, give or take one grid spacing (the balls are grid nodes)
+    c = gap / 2  # distance of a cusp from its rows
+    # a point y from the nearest cusp lies c - |y| from a row: the rows' rest there is
+    # sqrt((c - |y|)^2 + r^2) - r, which falls to 0.7 h at |y| = c - sqrt((r + 0.7 h)^2 - r^2)
+    band = c - math.sqrt((R + 0.7 * H) ** 2 - R * R)
+    g = 1.0 / math.sqrt(30.0)
+    off = np.abs(tips[inner, 1] - gap * np.round(tips[inner, 1] / gap))
+    assert off.max() <= band + g
+    # afterwards none of the fill's own samples is left more than the depth: each had a ball
+    # within its give (0.5 h), and the kept balls lie within a fifth of the sample spacing
+    # of those (the thinning)
+    after = rows + [cut.tip(p) for p in out.passes]
+    assert len(_left(m, after, 0.7, seed=0)) == 0
+    # other samples can lie where the fill pass runs off its cusp line by up to a grid node,
+    # beside new cusps: measured 2 % of them above 0.7 h, against 27 % before the fill
+    n = len(surface_samples(m.V, m.F, 30.0, seed=3)[0])
+    assert len(_left(m, rows, 0.7)) > 0.2 * n and len(_left(m, after, 0.7)) < 0.03 * n
+
+
+def test_rows_close_enough_get_no_fill(flat):
+    m, cut = flat
+    rows = _rows(math.sqrt(8 * R * 0.6 * H))  # the cusp is 0.6 h < 0.7 h
+    assert len(_left(m, rows, 0.7)) == 0
+    out = fill_passes(cut, m.V, m.F, rows, H, depth=0.7, tol=E, link_max=8.0, start_xy=rows[-1][-1, :2])
+    assert out.passes == [] and out.stats["balls"] == 0
+
+
+@pytest.mark.parametrize("kw", [{"depth": 0.0}, {"depth": float("nan")}, {"density": -1.0}])
+def test_bad_values_are_refused(flat, kw):
+    m, cut = flat
+    args = {"depth": 0.7, **kw}
+    with pytest.raises(PlanningError, match="fill"):
+        fill_passes(cut, m.V, m.F, _rows(0.5), H, tol=E, link_max=8.0, start_xy=(0.0, 0.0), **args)
+
+
+@pytest.mark.parametrize("kw, said", [({"fill": 0.0}, "fill must be"), ({"fill": float("inf")}, "fill must be"),
+                                      ({"pattern_scallop": 0.0}, "pattern-scallop must be"),
+                                      ({"pattern_scallop": 1.3}, "needs --fill")])
+def test_job_values_are_checked(kw, said):
+    with pytest.raises(JobValueError, match=said):
+        check_job(Job(pattern="zigzag", tool_radius=R, scallop=H, **kw))
+
+
+def test_a_plan_with_wider_paths_and_the_fill_stays_within_the_scallop():
+    # a sphere cap (R 60 mm, convex): the pattern spaced for 1.3 h leaves more than h
+    # between its paths; with the fill, the planner's own estimate finds no sample (another
+    # sample set than the fill's) left above the fill's depth, with a margin for the samples
+    # between the fill's own
+    from conformill.mesh.synthetic import sphere_cap
+    from conformill.pipeline import plan
+
+    m = sphere_cap(R=60.0, radius_xy=12.0, spacing=0.6)
+    h = 0.02
+
+    def left(res, depth, seed):
+        P, _, _ = surface_samples(res.mesh.V, res.mesh.F, 30.0, seed=seed)
+        rows = UncutRows(P, R, depth * h)
+        rows.add(*centre_moves(res.toolpath.passes, R))
+        return int(rows.uncut().sum())
+
+    base = plan(m, Job(pattern="zigzag", tool_radius=R, scallop=h, tolerance=E))
+    filled = plan(m, Job(pattern="zigzag", tool_radius=R, scallop=h, tolerance=E, pattern_scallop=1.3, fill=0.7))
+    assert base.report["fill"] is None
+    assert filled.report["fill"]["balls"] > 0 and filled.report["job"]["pattern_scallop"] == 1.3
+    # the paths spaced for 1.3 h are fewer, and they leave more than the depth between them;
+    # with the fill none of the fill's own samples is left above it
+    assert filled.report["paths"]["planned_paths"] < base.report["paths"]["planned_paths"]
+    assert filled.report["fill"]["balls"] > 0
+    assert left(filled, 0.7, seed=0) == 0

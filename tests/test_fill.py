@@ -126,3 +126,18 @@ def test_a_plan_with_wider_paths_and_the_fill_stays_within_the_scallop():
     assert filled.report["paths"]["planned_paths"] < base.report["paths"]["planned_paths"]
     assert filled.report["fill"]["balls"] > 0
     assert left(filled, 0.7, seed=0) == 0
+
+
+def test_the_hops_into_later_passes_clear_the_part(flat):
+    # passes.hops_into: over the plane z = 0 (ball centres at R), the rapid across keeps the
+    # ball HOP_CLEARANCE above the plane (tip at least that high) and the rapid down ends
+    # between the pass start and that height
+    from conformill.passes import HOP_CLEARANCE, hops_into
+
+    m, cut = flat
+    pieces = [np.array([[x, y, R], [x + 1.0, y, R]]) for x, y in ((-3.0, 0.0), (2.0, 3.0), (-1.0, -4.0))]
+    hops = hops_into(cut, np.array([-6.0, -6.0, R]), pieces)
+    assert len(hops) == 3
+    for across, down in hops:
+        assert across >= HOP_CLEARANCE - 1e-9 and 0.0 <= down <= across
+    assert hops_into(cut, np.zeros(3), []) == []

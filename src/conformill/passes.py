@@ -44,6 +44,23 @@ FIRST_BATCH = 4096
 HOP_CLEARANCE = 1.0
 
 
+def hops_into(cutter, start, pieces) -> list:
+    """The hop into each of ``pieces`` (ball-centre polylines cut one after another) from
+    the end of the one before it, the first from centre ``start``: as the hops over lifted
+    runs (:meth:`PassBuilder._cut_centres`), the tip heights ``(across, down)`` of a rapid
+    across :data:`HOP_CLEARANCE` clear of the part (by :meth:`conformill.cutter.BallCutter.clear_height`)
+    and of a rapid down to where the ball is that clear above the piece's start, then the
+    plunge. The G-code writer keeps them below the safe height."""
+    if not pieces:
+        return []
+    A = np.vstack([np.asarray(start, dtype=np.float64).reshape(1, 3)] + [p[-1:] for p in pieces[:-1]])
+    B = np.vstack([p[:1] for p in pieces])
+    H = np.maximum(np.maximum(A[:, 2], B[:, 2]), cutter.clear_height(A[:, :2], B[:, :2], clearance=HOP_CLEARANCE))
+    Hb = np.clip(cutter.clear_height(B[:, :2], B[:, :2], clearance=HOP_CLEARANCE), B[:, 2], H)
+    r = cutter.radius
+    return [(float(x - r), float(y - r)) for x, y in zip(H, Hb)]
+
+
 def threads_can_overlap() -> bool:
     """Whether numba's threading layer accepts parallel calls from two threads at once.
 

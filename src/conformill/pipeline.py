@@ -19,7 +19,7 @@ from conformill.errors import JobValueError, PlanningError
 from conformill.geometry.surface import DomainSurface
 from conformill.output.gcode import coolant_on, path_control, tool_number
 from conformill.patterns.family import Planner
-from conformill.passes import PassBuilder, serial_caller, threads_can_overlap
+from conformill.passes import PassBuilder, hops_into, serial_caller, threads_can_overlap
 from conformill.planning.steps import check_ball_size, check_meetable, check_params, check_resolution, side_interval
 from conformill.types import PENCIL_SEARCHES, Mesh, PathParams, PlanResult, ToolPath
 
@@ -514,6 +514,18 @@ def _check_size(mesh: Mesh, area: float, flat_ls: float, memory: float | None = 
             f"memory here; check the units (--scale), the scallop and the max-step")
 
 
+def _after(cutter, passes, pass_ids, hops, centres, hop: bool):
+    """The program's passes, ids and hops with the ball-centre passes ``centres`` (the
+    pencil's or the fill's) cut after them: entered by a hop from the pass before
+    (:func:`conformill.passes.hops_into`) when ``hop`` (``Job.hop_lift``), else by a retract
+    to the safe height."""
+    if hop and centres and passes:
+        into = hops_into(cutter, passes[-1][-1] + np.array([0.0, 0.0, cutter.radius]), centres)
+    else:
+        into = [None] * len(centres)
+    return (passes + [cutter.tip(p) for p in centres], pass_ids + [-1] * len(centres), hops + into)
+
+
 def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
     """Plan a ball-end finishing program for ``mesh``.
 
@@ -766,9 +778,7 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
                     found = pencil_chains(cutter, *search_args, **search_kw, **chain_kw,
                                           progress=lambda f: say("pencil", 0.9 * f))
                     pencil = link_chains(cutter, found, e, link_max, start)
-                passes = passes + [cutter.tip(p) for p in pencil.passes]
-                pass_ids = pass_ids + [-1] * len(pencil.passes)
-                hops = hops + [None] * len(pencil.passes)
+                passes, pass_ids, hops = _after(cutter, passes, pass_ids, hops, pencil.passes, job.hop_lift > 0)
         fill = None
         if job.fill is not None:
             from conformill.fill import fill_passes
@@ -780,9 +790,7 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
                 fill = fill_passes(cutter, mesh.V, mesh.F, passes, h, depth=job.fill, tol=e, link_max=link_max,
                                    start_xy=start, settle_tol=job.settle * h, grid=fold_grid,
                                    progress=lambda f: say("fill", f))
-                passes = passes + [cutter.tip(p) for p in fill.passes]
-                pass_ids = pass_ids + [-1] * len(fill.passes)
-                hops = hops + [None] * len(fill.passes)
+                passes, pass_ids, hops = _after(cutter, passes, pass_ids, hops, fill.passes, job.hop_lift > 0)
     if stock:  # the tips so far are those of the ball of radius r_cut: the ball of radius r is stock higher
         lift = np.array([0.0, 0.0, stock])
         passes = [p + lift for p in passes]

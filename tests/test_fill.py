@@ -141,3 +141,17 @@ def test_the_hops_into_later_passes_clear_the_part(flat):
     for across, down in hops:
         assert across >= HOP_CLEARANCE - 1e-9 and 0.0 <= down <= across
     assert hops_into(cut, np.zeros(3), []) == []
+
+
+def test_a_huge_part_gets_a_lower_density_with_a_warning(flat, monkeypatch, caplog):
+    # as the pencil: more samples than the stage's cap (here lowered to 2000) lower the
+    # density, with a warning that names it
+    import conformill.pencil as pencil_mod
+
+    monkeypatch.setattr(pencil_mod, "_MAX_SAMPLES", 2000)
+    m, cut = flat
+    rows = _rows(math.sqrt(8 * R * 1.3 * H))
+    with caplog.at_level("WARNING", logger="conformill.fill"):
+        out = fill_passes(cut, m.V, m.F, rows, H, depth=0.7, tol=E, link_max=8.0, start_xy=(0.0, 0.0))
+    assert out.stats["samples"] <= 2000 and out.stats["density_per_mm2"] < 30.0
+    assert "per mm^2" in caplog.text

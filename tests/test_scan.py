@@ -79,3 +79,16 @@ def test_wider_paths_without_the_fill_exit_2_without_output(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "Traceback" not in err and "pattern-scallop 1.3" in err and "--fill" in err
     assert not out.exists()
+
+
+def test_fill_off_beside_scan_leaves_out_the_fill_and_the_wider_paths(tmp_path):
+    out = tmp_path / "p.nc"
+    assert main(COMMON + ["--scan", "--fill", "off", "-o", str(out)]) == 0
+    head = "\n".join(_header(out))
+    assert "fill" not in head and "pattern scallop" not in head and "pencil: folds" in head
+
+
+def test_a_fill_that_is_no_number_exits_2(tmp_path, capsys):
+    out = tmp_path / "p.nc"
+    assert main(COMMON + ["--fill", "lots", "-o", str(out)]) == 2
+    assert "off" in capsys.readouterr().err and not out.exists()

@@ -20,13 +20,17 @@ that the pencil passes (``Job.pencil``) are for, not the fill. The kept balls ar
 chained, settled, linked and refined as the pencil's centres are
 (:func:`conformill.pencil.chains_of`, :func:`conformill.pencil.link_chains`).
 
-Session 53 (``python benchmarks/bench_tradeoff.py MESH --pattern zigzag --variants "scan, no fill" scan``: the recipe with the paths spaced for
-1.3 h and a fill depth of 0.7 h, against the same recipe without them, r = 4, h = e =
-0.01, the harness's 400k-sample judge): see docs/issue5.md, "Session 53".
+Session 53 (``python benchmarks/bench_raster.py --scan``, every mesh, r = 4, h = e = 0.01,
+the harness's 400k-sample judge): with the paths spaced for 1.3 h and the fill above 0.7 h,
+27 of the 33 ``--scan`` programs pass where 25 did; on the scans they are up to 11 % shorter
+(igea 7-9 %), on smooth CAD parts longer (the rows leave more than 0.7 h along most of each
+gap), and igea's plans took 1.7-2.7 s longer, 0.8-1.0 s of it this stage's
+(docs/issue5.md, "Session 53").
 """
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass, field
 
@@ -36,6 +40,8 @@ from numba import njit, prange
 from conformill.errors import PlanningError
 
 __all__ = ["FILL_GIVE", "FillResult", "fill_passes"]
+
+log = logging.getLogger(__name__)
 
 #: A sample's ball is kept when its sphere comes within this many h of the sample.
 FILL_GIVE = 0.5
@@ -175,12 +181,22 @@ def fill_passes(cutter, V, F, passes, h: float, *, depth: float, tol: float, lin
     from conformill.pattern_rest import UncutRows, centre_moves
     from conformill.pencil import PencilFound, _face_areas, chains_of, link_chains, surface_samples
 
+    from conformill.folds import _MAX_GRID, _grid_box
+    from conformill.pencil import _MAX_SAMPLES
+
     _check(h, depth, density)
     say = progress or (lambda f: None)
     r = cutter.radius
     V = np.asarray(V, dtype=np.float64)
     F = np.asarray(F, dtype=np.int64)
-    P, N, _ = surface_samples(V, F, density, seed, areas=_face_areas(V, F))
+    areas = _face_areas(V, F)
+    lo, hi = _grid_box(cutter)
+    most = min(0.9 * _MAX_GRID / float(np.prod(hi - lo)), _MAX_SAMPLES / float(areas.sum()))
+    if density > most:  # as the pencil does: a huge part (wrong units?) gets a lower density
+        log.warning("fill: %.3g samples per mm^2 over this part would be more than %dM samples or grid points; "
+                    "using %.3g per mm^2", density, _MAX_SAMPLES // 10**6, most)
+        density = most
+    P, N, _ = surface_samples(V, F, density, seed, areas=areas)
     say(0.1)
     # the samples a grid ball comes within give of, then those the passes left: the same
     # balls as the other way round, with the passes' test on fewer samples

@@ -164,7 +164,7 @@ class ToolPath:
         retracts to ``safe_z`` with rapids.
     pass_ids : list of int
         For each pass, the index of the planned path(s) it starts with (for colouring);
-        -1 for a pencil pass (:mod:`conformill.pencil`).
+        -1 for a pencil pass (:mod:`conformill.pencil`) or a fill pass (:mod:`conformill.fill`).
     safe_z : float
     hops : list of (float, float) or None
         For each pass, where the move into it from the pass before is a hop over a lifted

@@ -101,12 +101,12 @@ def test_job_values_are_checked(kw, said):
 
 
 def test_a_plan_with_wider_paths_and_the_fill_stays_within_the_scallop():
-    # a sphere cap (R 60 mm, convex): the pattern spaced for 1.3 h leaves more than h
-    # between its paths; with the fill, the planner's own estimate finds no sample (another
-    # sample set than the fill's) left above the fill's depth, with a margin for the samples
-    # between the fill's own
+    # a sphere cap (R 60 mm, convex): the pattern spaced for 1.3 h leaves more than the depth
+    # between its paths; with the fill, the planner's own estimate finds none of the fill's
+    # samples left above it (one plan, without the test of the widening: on a part this
+    # smooth plan() drops the fill, below)
     from conformill.mesh.synthetic import sphere_cap
-    from conformill.pipeline import plan
+    from conformill.pipeline import _plan_once, plan
 
     m = sphere_cap(R=60.0, radius_xy=12.0, spacing=0.6)
     h = 0.02
@@ -118,14 +118,45 @@ def test_a_plan_with_wider_paths_and_the_fill_stays_within_the_scallop():
         return int(rows.uncut().sum())
 
     base = plan(m, Job(pattern="zigzag", tool_radius=R, scallop=h, tolerance=E))
-    filled = plan(m, Job(pattern="zigzag", tool_radius=R, scallop=h, tolerance=E, pattern_scallop=1.3, fill=0.7))
+    job = Job(pattern="zigzag", tool_radius=R, scallop=h, tolerance=E, pattern_scallop=1.3, fill=0.7)
+    filled = _plan_once(m, job)
     assert base.report["fill"] is None
     assert filled.report["fill"]["balls"] > 0 and filled.report["job"]["pattern_scallop"] == 1.3
-    # the paths spaced for 1.3 h are fewer, and they leave more than the depth between them;
-    # with the fill none of the fill's own samples is left above it
     assert filled.report["paths"]["planned_paths"] < base.report["paths"]["planned_paths"]
-    assert filled.report["fill"]["balls"] > 0
     assert left(filled, 0.7, seed=0) == 0
+    # the test of the widening: on this smooth cap the fill is longer than the wider paths
+    # saved (sqrt(1.3) - 1 of the pattern's feed), so plan() plans again with the pattern
+    # spaced for h and no fill: the same passes as that plan
+    feed = lambda ps: sum(np.linalg.norm(np.diff(q, axis=0), axis=1).sum() for q in ps)  # noqa: E731
+    fill_feed = filled.report["fill"]["feed_mm"]
+    pattern = [q for q, i in zip(filled.toolpath.passes, filled.toolpath.pass_ids) if i >= 0]
+    assert fill_feed > (math.sqrt(1.3) - 1) * feed(pattern)
+    dropped = plan(m, job)
+    assert dropped.report["fill"]["dropped"] and dropped.report["fill"]["feed_mm"] == fill_feed
+    assert dropped.report["job"]["pattern_scallop"] == 1.0 and dropped.report["job"]["fill"] is None
+    assert len(dropped.toolpath.passes) == len(base.toolpath.passes)
+    for a, b in zip(dropped.toolpath.passes, base.toolpath.passes):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_a_fill_shorter_than_the_saving_is_kept(monkeypatch):
+    # the same rule the other way: a fill whose feed is below sqrt(F) - 1 of the pattern's
+    # is kept (here the fill's feed is reported as 0)
+    import conformill.pipeline as pl
+    from conformill.mesh.synthetic import sphere_cap
+
+    once = pl._plan_once
+
+    def small_fill(mesh, job, progress=None):
+        res = once(mesh, job, progress)
+        if res.report["fill"] is not None:
+            res.report["fill"]["feed_mm"] = 0.0
+        return res
+
+    monkeypatch.setattr(pl, "_plan_once", small_fill)
+    m = sphere_cap(R=60.0, radius_xy=12.0, spacing=0.6)
+    res = pl.plan(m, Job(pattern="zigzag", tool_radius=R, scallop=0.02, tolerance=E, pattern_scallop=1.3, fill=0.7))
+    assert not res.report["fill"].get("dropped") and res.report["job"]["pattern_scallop"] == 1.3
 
 
 def test_the_hops_into_later_passes_clear_the_part(flat):

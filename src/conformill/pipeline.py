@@ -8,6 +8,7 @@ reachability -> pattern in the domain -> forward steps and CC points -> ball-cut
 from __future__ import annotations
 
 import logging
+import math
 import time
 from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass, replace
@@ -531,6 +532,14 @@ def _after(cutter, passes, pass_ids, hops, centres, hop: bool):
 def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
     """Plan a ball-end finishing program for ``mesh``.
 
+    The fill's test of its own widening: with ``job.pattern_scallop`` F above 1 and the
+    fill, when the fill's feed is more than the wider paths saved (``sqrt(F) - 1`` of the
+    pattern's feed: the side step grows as the square root of the scallop), the part is
+    planned again with the pattern spaced for h and no fill. That is a smooth part, where
+    the wider rows leave more than the fill's depth along most of each gap and the fill
+    would cut it all. The report's ``fill`` then holds the first plan's figures with
+    ``"dropped": True``, and its ``timings_s`` the two plans' sum.
+
     Parameters
     ----------
     mesh : Mesh
@@ -558,6 +567,28 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
         safe height below the part, a part whose program could not fit in this machine's
         memory (wrong units).
     """
+    res = _plan_once(mesh, job, progress)
+    fill = res.report["fill"]
+    if fill is None or job.pattern_scallop <= 1.0:
+        return res
+    pattern = [q for q, i in zip(res.toolpath.passes, res.toolpath.pass_ids) if i >= 0]
+    pattern_feed = float(sum(np.linalg.norm(np.diff(q, axis=0), axis=1).sum() for q in pattern))
+    saved = (math.sqrt(job.pattern_scallop) - 1.0) * pattern_feed
+    if fill["feed_mm"] <= saved:
+        return res
+    log.info("fill: %.1f m of fill passes against %.1f m saved by the wider paths: planning again with the "
+             "pattern spaced for the scallop and no fill", fill["feed_mm"] / 1000, saved / 1000)
+    again = _plan_once(mesh, replace(job, fill=None, pattern_scallop=1.0), progress)
+    t = dict(again.report["timings_s"])
+    for k_, v in res.report["timings_s"].items():
+        t[k_] = t.get(k_, 0.0) + v
+    report = {**again.report, "timings_s": t,
+              "fill": {**fill, "dropped": True, "pattern_feed_mm": pattern_feed, "saved_mm": saved}}
+    return replace(again, report=report)
+
+
+def _plan_once(mesh: Mesh, job: Job, progress=None) -> PlanResult:
+    """:func:`plan` without the fill's test of its own widening."""
     from conformill.cutter import BallCutter
     from conformill.param import parameterize
     from conformill.param.quality import quality

@@ -23,8 +23,9 @@ chained, settled, linked and refined as the pencil's centres are
 Session 53 (``python benchmarks/bench_raster.py --scan``, every mesh, r = 4, h = e = 0.01,
 the harness's 400k-sample judge): with the paths spaced for 1.3 h and the fill above 0.7 h,
 27 of the 33 ``--scan`` programs pass where 25 did; on the scans they are up to 11 % shorter
-(igea 7-9 %), on smooth CAD parts longer (the rows leave more than 0.7 h along most of each
-gap), and igea's plans took 1.7-2.7 s longer, 0.8-1.0 s of it this stage's
+(igea 7-9 %), and igea's plans took 1.7-2.7 s longer, 0.8-1.0 s of it this stage's. On
+smooth CAD parts the rows leave more than 0.7 h along most of each gap and the fill would
+cut it all: :func:`conformill.pipeline.plan` then plans again without the widening
 (docs/issue5.md, "Session 53").
 """
 

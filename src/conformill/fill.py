@@ -108,28 +108,22 @@ def _nearest_balls(P, N, r, x0, y0, g, nx, ny, z):
 
 def _grid_balls(cutter, P, N, density, grid=None):
     """For samples ``P`` (normals ``N``): the ball of the XY grid (spacing ``1 /
-    sqrt(density)`` over the cutter's box) nearest each sample among the 4 x 4 nodes
-    around its tangent ball's XY (:func:`_nearest_balls`), and how far its sphere lies from
-    the sample (mm; inf where no node has a ball). The heights are ``grid``'s (the fold
-    search's :class:`conformill.folds.DropGrid`) when it is that grid; else the grid is
-    dropped here."""
-    from conformill.folds import _grid_box
+    sqrt(density)`` over the cutter's part, :func:`conformill.folds.grid_shape`) nearest each
+    sample among the 4 x 4 nodes around its tangent ball's XY (:func:`_nearest_balls`), and
+    how far its sphere lies from the sample (mm; inf where no node has a ball). The heights
+    are ``grid``'s (this cutter's fold grid, :class:`conformill.folds.DropGrid`) when it has
+    that spacing; else the grid is dropped here (:func:`conformill.folds.drop_grid`)."""
+    from conformill.folds import drop_grid
 
-    r = cutter.radius
     g = 1.0 / math.sqrt(density)
-    lo, hi = _grid_box(cutter)
-    nx, ny = (int(v) for v in np.ceil((hi - lo) / g) + 1)
-    if grid is not None and grid.spacing == g and (grid.x0, grid.y0) == (float(lo[0]), float(lo[1])) \
-            and (grid.nx, grid.ny) == (nx, ny):
-        z = grid.z
-    else:
-        z = cutter.drop(np.column_stack([np.tile(lo[0] + g * np.arange(nx), ny),
-                                         np.repeat(lo[1] + g * np.arange(ny), nx)]))
-    node, d = _nearest_balls(np.ascontiguousarray(P), np.ascontiguousarray(N), float(r), float(lo[0]),
-                             float(lo[1]), g, nx, ny, np.ascontiguousarray(z, dtype=np.float64))
+    if grid is None or grid.spacing != g:
+        grid = drop_grid(cutter, g)[0]
+    z = np.ascontiguousarray(grid.z, dtype=np.float64)
+    node, d = _nearest_balls(np.ascontiguousarray(P), np.ascontiguousarray(N), float(cutter.radius), grid.x0,
+                             grid.y0, g, grid.nx, grid.ny, z)
     ok = node >= 0
     C = np.full((len(P), 3), np.nan)
-    C[ok] = np.column_stack([lo[0] + g * (node[ok] % nx), lo[1] + g * (node[ok] // nx), z[node[ok]]])
+    C[ok] = np.column_stack([grid.x0 + g * (node[ok] % grid.nx), grid.y0 + g * (node[ok] // grid.nx), z[node[ok]]])
     return C, d, g
 
 
@@ -165,8 +159,8 @@ def fill_passes(cutter, V, F, passes, h: float, *, depth: float, tol: float, lin
     give : float
         A ball is kept for a sample when its sphere comes within ``give * h`` of it.
     grid : conformill.folds.DropGrid, optional
-        The fold search's grid: its heights are used where it is the fill's grid (the same
-        spacing over the same box), with the same balls as dropping them anew.
+        This cutter's fold grid: its heights are used when it has the fill's spacing, with
+        the same balls as dropping them anew.
     progress : callable, optional
         ``progress(fraction)``.
 
@@ -179,11 +173,9 @@ def fill_passes(cutter, V, F, passes, h: float, *, depth: float, tol: float, lin
     PlanningError
         ``h``, ``depth`` or ``density`` is not a positive number.
     """
-    from conformill.pattern_rest import UncutRows, centre_moves
-    from conformill.pencil import PencilFound, _face_areas, chains_of, link_chains, surface_samples
-
     from conformill.folds import _MAX_GRID, _grid_box
-    from conformill.pencil import _MAX_SAMPLES
+    from conformill.pattern_rest import UncutRows, centre_moves
+    from conformill.pencil import _MAX_SAMPLES, PencilFound, _face_areas, chains_of, link_chains, surface_samples
 
     _check(h, depth, density)
     say = progress or (lambda f: None)

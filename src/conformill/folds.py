@@ -295,6 +295,28 @@ def _grid_box(cutter):
     return box[:, :2].min(axis=0) - cutter.radius, box[:, 2:].max(axis=0) + cutter.radius
 
 
+def grid_shape(cutter, spacing: float):
+    """The XY grid of ``spacing`` over the cutter's part (:func:`_grid_box`): ``(lo, hi, nx, ny)``,
+    node ``(i, j)`` at ``lo + spacing (i, j)``."""
+    lo, hi = _grid_box(cutter)
+    nx, ny = (int(v) for v in np.ceil((hi - lo) / spacing) + 1)
+    return lo, hi, nx, ny
+
+
+def drop_grid(cutter, spacing: float):
+    """The drop heights of the grid of :func:`grid_shape`, dropped row by row (consecutive
+    drops share the warm start): ``(DropGrid, X, Y, tri)``, the nodes' coordinates and
+    contact triangles (-1 where the ball touches nothing). The fold search's grid, and the
+    fill stage's when the fold search did not run (:mod:`conformill.fill`)."""
+    lo, _, nx, ny = grid_shape(cutter, spacing)
+    X = np.tile(lo[0] + spacing * np.arange(nx), ny)
+    Y = np.repeat(lo[1] + spacing * np.arange(ny), nx)
+    z, tri = cutter._drop(np.column_stack([X, Y]), np.full(nx * ny, -np.inf))
+    tri = np.where(np.isfinite(z), tri, -1)
+    grid = DropGrid(x0=float(lo[0]), y0=float(lo[1]), spacing=float(spacing), nx=nx, ny=ny, z=z)
+    return grid, X, Y, tri
+
+
 def fold_points(cutter, spacing: float, jump: float) -> FoldPoints:
     """Fold points of the drop surface on an XY grid of ``spacing`` over the part.
 
@@ -321,17 +343,12 @@ def fold_points(cutter, spacing: float, jump: float) -> FoldPoints:
         if not (np.isfinite(v) and v > 0):
             raise PlanningError(f"pencil: {name} must be a positive number, got {v}")
     r = cutter.radius
-    lo, hi = _grid_box(cutter)
-    nx, ny = (int(v) for v in np.ceil((hi - lo) / spacing) + 1)
+    lo, hi, nx, ny = grid_shape(cutter, spacing)
     if nx * ny > _MAX_GRID:
         raise PlanningError(f"pencil: a fold grid of {spacing:g} mm over {hi[0] - lo[0]:.1f} x {hi[1] - lo[1]:.1f} mm "
                             f"would hold {nx * ny} points (at most {_MAX_GRID})")
-    gx = lo[0] + spacing * np.arange(nx)
-    gy = lo[1] + spacing * np.arange(ny)
-    X = np.tile(gx, ny)  # row by row: consecutive drops share the warm start
-    Y = np.repeat(gy, nx)
-    z, tri = cutter._drop(np.column_stack([X, Y]), np.full(nx * ny, -np.inf))
-    tri = np.where(np.isfinite(z), tri, -1)
+    grid, X, Y, tri = drop_grid(cutter, spacing)
+    z = grid.z
     Q = _contacts(X, Y, z, tri, cutter._T)
     idx = np.arange(nx * ny).reshape(ny, nx)
     E = np.concatenate([np.column_stack([idx[:, :-1].ravel(), idx[:, 1:].ravel()]),
@@ -353,5 +370,4 @@ def fold_points(cutter, spacing: float, jump: float) -> FoldPoints:
     stats = {"grid_points": int(np.count_nonzero(tri >= 0)), "edges": int(len(a)),
              "drops_per_edge": float(out[:, 9].mean()) if len(a) else 0.0, "spacing_mm": float(spacing),
              "jump_mm": float(jump)}
-    return FoldPoints(centres=C, contact_a=qa, contact_b=qb, shadow=depth, stats=stats,
-                      grid=DropGrid(x0=float(lo[0]), y0=float(lo[1]), spacing=float(spacing), nx=nx, ny=ny, z=z))
+    return FoldPoints(centres=C, contact_a=qa, contact_b=qb, shadow=depth, stats=stats, grid=grid)

@@ -779,12 +779,13 @@ def _plan_once(mesh: Mesh, job: Job, progress=None) -> PlanResult:
                      "minutes_saved": builder.hop_saved}
         pencil = None
         fold_grid = None  # the fold search's grid of drops (conformill.folds.DropGrid)
+        if job.pencil or job.fill is not None:  # their cutter: the worker's, or built once here (nothing cut)
+            cutter = builder.cutter if builder.cutter is not None else BallCutter(mesh.V, mesh.F, r_cut)
         if job.pencil:
             from conformill.pencil import LeftToCut, chains_of, link_chains, pencil_chains, pencil_search
 
             say("pencil", 0.0)
             with timer("pencil"):  # beside the other stages: the wait for the search and links
-                cutter = builder.cutter if builder.cutter is not None else BallCutter(mesh.V, mesh.F, r_cut)
                 start = passes[-1][-1, :2] if passes else mesh.V[:, :2].mean(axis=0)
                 if filtered:  # the centres where the pattern left more than pencil_left h
                     if left is None:
@@ -818,7 +819,6 @@ def _plan_once(mesh: Mesh, job: Job, progress=None) -> PlanResult:
 
             say("fill", 0.0)
             with timer("fill"):
-                cutter = builder.cutter if builder.cutter is not None else BallCutter(mesh.V, mesh.F, r_cut)
                 start = passes[-1][-1, :2] if passes else mesh.V[:, :2].mean(axis=0)
                 fill = fill_passes(cutter, mesh.V, mesh.F, passes, h, depth=job.fill, tol=e, link_max=link_max,
                                    start_xy=start, settle_tol=job.settle * h, grid=fold_grid,

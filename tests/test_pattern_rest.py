@@ -142,3 +142,32 @@ def test_rows_before_any_moves_are_uncut():
     np.testing.assert_array_equal(rows.uncut(), [True] * 4)
     with pytest.raises(ValueError, match="as many move starts as ends"):
         rows.add(np.zeros((2, 3)), np.zeros((1, 3)))
+
+
+@pytest.mark.parametrize("kind", ["row", "point", "nan", "far"])
+def test_hints_change_the_order_not_the_answer(kind):
+    # the hint only says which cells a point reads first: per row, per point, NaN (none) or
+    # far off the part, the same rows as brute force, in parts as in one call
+    rng = np.random.default_rng(7)
+    tips = [np.column_stack([rng.uniform(-8, 8, 60), rng.uniform(-6, 6, 60), rng.uniform(-1, 1, 60)])
+            for _ in range(6)]
+    A, B = centre_moves(tips, R)
+    Q = np.column_stack([rng.uniform(-10, 10, 1500), rng.uniform(-8, 8, 1500),
+                         rng.uniform(-2, 3, 1500)]).reshape(500, 3, 3)
+    d = _brute(Q.reshape(-1, 3), A, B).reshape(500, 3)
+    want = (d > R + 0.05).any(axis=1)
+    assert 0 < want.sum() < len(Q)
+    H = {"row": Q[:, 0, :2] + rng.normal(0, 2, (500, 2)),
+         "point": Q[:, :, :2] + rng.normal(0, 2, (500, 3, 2)),
+         "nan": np.full((500, 2), np.nan),
+         "far": np.full((500, 3, 2), 1e6)}[kind]
+    np.testing.assert_array_equal(uncut_beyond(Q, A, B, R, 0.05, hints=H), want)
+    rows = pr.UncutRows(Q, R, 0.05, hints=H)
+    rows.add(A[:100], B[:100])
+    rows.add(A[100:], B[100:])
+    np.testing.assert_array_equal(rows.uncut(), want)
+
+
+def test_hints_of_the_wrong_shape_are_refused():
+    with pytest.raises(ValueError, match=r"hints must be \(4, 2\) or \(4, 2, 2\)"):
+        pr.UncutRows(np.zeros((4, 2, 3)), R, 0.01, hints=np.zeros((3, 2)))

@@ -196,7 +196,7 @@ def fill_passes(cutter, V, F, passes, h: float, *, depth: float, tol: float, lin
     C, d, g = _grid_balls(cutter, P, N, density, grid)
     near = np.flatnonzero(d <= give * h)
     say(0.3)
-    rows = UncutRows(P[near], r, depth * h)
+    rows = UncutRows(P[near], r, depth * h, hints=P[near, :2] + r * N[near, :2])  # the tangent balls' XY
     rows.add(*centre_moves(passes, r))
     keep = near[rows.uncut()]
     say(0.7)

@@ -22,6 +22,13 @@ lies farther than that, and stops at the first move within reach: the centres ri
 ``r`` above the part, so on gentle ground only the cells within about ``sqrt(2 r depth)``
 of the point are read. On igea (zigzag, 460k moves, 176k probes of 58.8k fold points) the
 test takes about 0.3 s on two cores.
+
+A point reads first the 3 x 3 cells around a hint, where a move within reach most likely
+passes, then the rest of its window (the same answer in any order). Most points are reached,
+so a good hint ends most searches in a few cells: at the tangent ball's centre (the fill's
+samples, :mod:`conformill.fill`) the 300k samples of igea's fill took 0.07 s instead of
+0.31 s (session 54); at the wedged ball's centre (the pencil's probes) a little less than
+at the points themselves, the default.
 """
 
 from __future__ import annotations
@@ -104,43 +111,66 @@ def _bin(A, B, x0, y0, cell, ncx, ncy):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _reached(qx, qy, qz, A, B, reach, x0, y0, cell, ncx, ncy, start, item, zlo, zhi):
+def _cell_reaches(c, qx, qy, qz, dy, x0, cell, ncx, reach2, A, B, start, item, zlo, zhi):
+    """Whether a move entered in cell ``c`` comes within ``sqrt(reach2)`` of ``q`` (``dy``:
+    the cell's row's distance from ``q`` in Y); the cell is skipped when its box (XY, and
+    its moves' height range) lies farther than that."""
+    if start[c + 1] == start[c]:
+        return False
+    cx0 = x0 + (c % ncx) * cell
+    dx = max(cx0 - qx, qx - cx0 - cell, 0.0)
+    dz = max(zlo[c] - qz, qz - zhi[c], 0.0)
+    if dx * dx + dy * dy + dz * dz > reach2:
+        return False
+    for e in range(start[c], start[c + 1]):
+        k = item[e]
+        if segment_d2(qx, qy, qz, A[k, 0], A[k, 1], A[k, 2], B[k, 0], B[k, 1], B[k, 2]) <= reach2:
+            return True
+    return False
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _reached(qx, qy, qz, hx, hy, A, B, reach, x0, y0, cell, ncx, ncy, start, item, zlo, zhi):
     """Whether a move comes within ``reach`` of ``q``. The cells within ``reach`` in XY are
-    visited; a cell is skipped when its box (XY, and its moves' height range) lies farther
-    than ``reach`` from the point."""
+    visited (:func:`_cell_reaches`), first the 3 x 3 around the hint ``(hx, hy)``, where a
+    move within reach most likely passes, then the others: the same answer in any order,
+    found sooner when the hint is good (session 54: the fill's samples with their tangent
+    balls' XY as hints, 4x quicker on igea)."""
     reach2 = reach * reach
     i0 = max(int(math.floor((qx - reach - x0) / cell)), 0)
     i1 = min(int(math.floor((qx + reach - x0) / cell)), ncx - 1)
     j0 = max(int(math.floor((qy - reach - y0) / cell)), 0)
     j1 = min(int(math.floor((qy + reach - y0) / cell)), ncy - 1)
+    hi = int(math.floor((hx - x0) / cell)) if hx == hx else -2  # a NaN hint: no cell first
+    hj = int(math.floor((hy - y0) / cell)) if hy == hy else -2
+    for j in range(max(j0, hj - 1), min(j1, hj + 1) + 1):
+        cy0 = y0 + j * cell
+        dy = max(cy0 - qy, qy - cy0 - cell, 0.0)
+        for i in range(max(i0, hi - 1), min(i1, hi + 1) + 1):
+            if _cell_reaches(j * ncx + i, qx, qy, qz, dy, x0, cell, ncx, reach2, A, B, start, item, zlo, zhi):
+                return True
     for j in range(j0, j1 + 1):
         cy0 = y0 + j * cell
         dy = max(cy0 - qy, qy - cy0 - cell, 0.0)
+        near = abs(j - hj) <= 1
         for i in range(i0, i1 + 1):
-            c = j * ncx + i
-            if start[c + 1] == start[c]:
-                continue
-            cx0 = x0 + i * cell
-            dx = max(cx0 - qx, qx - cx0 - cell, 0.0)
-            dz = max(zlo[c] - qz, qz - zhi[c], 0.0)
-            if dx * dx + dy * dy + dz * dz > reach2:
-                continue
-            for e in range(start[c], start[c + 1]):
-                k = item[e]
-                if segment_d2(qx, qy, qz, A[k, 0], A[k, 1], A[k, 2], B[k, 0], B[k, 1], B[k, 2]) <= reach2:
-                    return True
+            if near and abs(i - hi) <= 1:
+                continue  # visited first
+            if _cell_reaches(j * ncx + i, qx, qy, qz, dy, x0, cell, ncx, reach2, A, B, start, item, zlo, zhi):
+                return True
     return False
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _first_beyond(Q, first, reach, A, B, x0, y0, cell, ncx, ncy, start, item, zlo, zhi,
+def _first_beyond(Q, H, first, reach, A, B, x0, y0, cell, ncx, ncy, start, item, zlo, zhi,
                   A0, B0, x00, y00, cell0, ncx0, ncy0, start0, item0, zlo0, zhi0):
     """For each row of ``Q (n, p, 3)``: the first point beyond ``reach`` of every move, of
     the new ones (``A, B`` and their grid) and of those handed over before (``A0, B0``
     and theirs), or ``p`` when there is none (a point with a NaN counts as beyond). The
     row's points before ``first[q]`` are known reached, and the point ``first[q]`` (when
     below ``p``) known beyond the earlier moves, so it is tested against the new ones
-    only; the row's points after the first beyond are not read."""
+    only; the row's points after the first beyond are not read. ``H (n, p, 2)``: each
+    point's hint (:func:`_reached`)."""
     n, p = Q.shape[0], Q.shape[1]
     out = np.empty(n, dtype=np.int64)
     for q in prange(n):
@@ -150,10 +180,11 @@ def _first_beyond(Q, first, reach, A, B, x0, y0, cell, ncx, ncy, start, item, zl
             if not (qx == qx and qy == qy and qz == qz):
                 out[q] = s
                 break
-            if _reached(qx, qy, qz, A, B, reach, x0, y0, cell, ncx, ncy, start, item, zlo, zhi):
+            hx, hy = H[q, s, 0], H[q, s, 1]
+            if _reached(qx, qy, qz, hx, hy, A, B, reach, x0, y0, cell, ncx, ncy, start, item, zlo, zhi):
                 continue
-            if s > first[q] and _reached(qx, qy, qz, A0, B0, reach, x00, y00, cell0, ncx0, ncy0, start0, item0,
-                                         zlo0, zhi0):
+            if s > first[q] and _reached(qx, qy, qz, hx, hy, A0, B0, reach, x00, y00, cell0, ncx0, ncy0, start0,
+                                         item0, zlo0, zhi0):
                 continue
             out[q] = s
             break
@@ -202,14 +233,17 @@ class UncutRows:
         As for :func:`uncut_beyond`.
     radius, depth : float
         As for :func:`uncut_beyond`.
+    hints : (n, 2) or (n, p, 2) float, optional
+        As for :func:`uncut_beyond`.
     """
 
-    def __init__(self, points, radius: float, depth: float):
+    def __init__(self, points, radius: float, depth: float, hints=None):
         Q = np.asarray(points, dtype=np.float64)
         self._Q = np.ascontiguousarray(Q.reshape(-1, 1, 3) if Q.ndim < 3 else Q)
         self._reach = float(radius) + float(depth)
         if not (np.isfinite(self._reach) and radius > 0 and depth >= 0):
             raise ValueError(f"radius must be finite and positive and depth finite and >= 0, got {radius}, {depth}")
+        self._H = _hints(self._Q, hints)
         self._first = np.zeros(len(self._Q), dtype=np.int64)
         self._parts = []  # the moves handed over, (A, B) per part
         self._before = None  # a _MoveGrid of all of them
@@ -223,7 +257,7 @@ class UncutRows:
             self._before = _MoveGrid(np.vstack([a for a, _ in self._parts]), np.vstack([b for _, b in self._parts])) \
                 if self._parts else _MoveGrid(np.zeros((0, 3)), np.zeros((0, 3)))
         new = _MoveGrid(A, B)
-        self._first = _first_beyond(self._Q, self._first, self._reach, *new.args, *self._before.args)
+        self._first = _first_beyond(self._Q, self._H, self._first, self._reach, *new.args, *self._before.args)
         self._parts.append((A, B))
         self._before = new if len(self._parts) == 1 else None  # built again by the next add, if any
 
@@ -232,7 +266,21 @@ class UncutRows:
         return self._first < self._Q.shape[1]
 
 
-def uncut_beyond(points, A, B, radius: float, depth: float) -> np.ndarray:
+def _hints(Q, hints) -> np.ndarray:
+    """``(n, p, 2)`` hints for the rows ``Q (n, p, 3)``: ``hints`` per row (``(n, 2)``) or per
+    point (``(n, p, 2)``), or the points' own XY."""
+    if hints is None:
+        return np.ascontiguousarray(Q[:, :, :2])
+    H = np.asarray(hints, dtype=np.float64)
+    n, p = Q.shape[:2]
+    if H.shape == (n, 2):
+        H = np.broadcast_to(H[:, None, :], (n, p, 2))
+    if H.shape != (n, p, 2):
+        raise ValueError(f"hints must be ({n}, 2) or ({n}, {p}, 2) for these points, got {H.shape}")
+    return np.ascontiguousarray(H)
+
+
+def uncut_beyond(points, A, B, radius: float, depth: float, hints=None) -> np.ndarray:
     """Whether the ball moves ``A -> B`` (centres, :func:`centre_moves`) leave more than
     ``depth`` at each of ``points`` by the distance bound: no move's centre segment comes
     within ``radius + depth`` of the point.
@@ -248,11 +296,15 @@ def uncut_beyond(points, A, B, radius: float, depth: float) -> np.ndarray:
         The ball's radius (mm).
     depth : float
         Material depth (mm, >= 0).
+    hints : (n, 2) or (n, p, 2) float, optional
+        Where in XY a centre move within reach of each row (or point) most likely passes:
+        those cells are read first (the same answer, found sooner; NaN: no hint). The
+        tangent ball's centre at a surface point is a good hint. Default: the points' own XY.
 
     Returns
     -------
     (n,) bool
     """
-    rows = UncutRows(points, radius, depth)
+    rows = UncutRows(points, radius, depth, hints)
     rows.add(A, B)
     return rows.uncut()

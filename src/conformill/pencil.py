@@ -896,7 +896,8 @@ class LeftToCut:
 
         self._probed = found.probed
         self._radius = float(radius)
-        self._rows = UncutRows(found.probes[self._probed], radius, depth)
+        # the hint: the wedged ball's XY, over its shadow
+        self._rows = UncutRows(found.probes[self._probed], radius, depth, hints=found.centres[self._probed, :2])
 
     def add(self, passes) -> None:
         """More tip passes (a list of ``(k, 3)``)."""

@@ -384,17 +384,19 @@ def test_plan_with_pencil_adds_passes_after_the_same_program(tmp_path, search):
     assert left["base"].max() > left["pencil"].max() + 0.01  # the rows alone leave more between them
 
 
-@pytest.mark.parametrize("search, left", [("samples", None), ("folds", None), ("folds", 0.5)])
-def test_plan_searches_beside_the_pattern_for_the_same_program(search, left):
+@pytest.mark.parametrize("search, left, fill", [("samples", None, None), ("folds", None, None), ("folds", 0.5, None),
+                                               ("folds", 0.5, 0.7), ("samples", None, 0.7)])
+def test_plan_searches_beside_the_pattern_for_the_same_program(search, left, fill):
     # with two numba threads the plan runs the pencil's search beside the pattern stage
-    # (pencil.BackgroundChains), with one in line after it: the same passes, point for point
+    # (pencil.BackgroundChains), and the fill's samples after it, with one in line after
+    # it: the same passes, point for point
     import numba
 
     from conformill.passes import threads_can_overlap
 
     m = syn.v_groove(a_deg=8.0, half=10.0, step=0.5)
     job = Job(pattern="zigzag", tool_radius=R, scallop=0.1, tolerance=0.01, pencil=True, pencil_search=search,
-              pencil_left=left)
+              pencil_left=left, fill=fill)
     n = numba.get_num_threads()
     if n < 2:
         pytest.skip("one numba thread: nothing runs beside")
@@ -410,6 +412,7 @@ def test_plan_searches_beside_the_pattern_for_the_same_program(search, left):
     for a, b in zip(one.toolpath.passes, two.toolpath.passes):
         np.testing.assert_array_equal(a, b)
     assert one.report["pencil"] == two.report["pencil"]
+    assert one.report["fill"] == two.report["fill"] and (fill is None) == (two.report["fill"] is None)
 
 
 def test_background_search_stops_and_reports_errors():
@@ -463,6 +466,48 @@ def test_background_links_only_from_the_end_asked_for():
                     bg.linked(other, -1.0, 8.0)
             else:
                 assert bg.linked(other, -1.0, 8.0) is None
+
+
+@pytest.mark.parametrize("chain", [False, True])
+def test_background_then_runs_after_the_worker_s_own_work(chain):
+    # then(cutter) runs in the worker after the search (chain=False) or after the links
+    # (chain=True), and then_result() hands over its value or its error; None when it
+    # never ran (stopped before the cutter was there)
+    import threading
+
+    m = syn.v_groove(a_deg=8.0, half=10.0, step=0.5)
+    cut = BallCutter(m.V, m.F, R)
+    seen = []
+
+    def then(cutter):
+        seen.append((cutter, bg._searched.is_set(), threading.current_thread().name))
+        return 42
+
+    start = np.array([-9.0, 3.0])
+    with pencil.BackgroundChains(lambda: cut, m.V, m.F, 0.1, chain=chain, then=then) as bg:
+        if chain:
+            bg.link_from(start, 0.01, 8.0)
+        assert bg.then_result() == 42
+        if chain:
+            assert bg.linked(start, 0.01, 8.0) is not None and bg.link_s > 0
+    assert seen == [(cut, True, "conformill-pencil")]
+
+    def fails(cutter):
+        raise PlanningError("then failed (test)")
+
+    with pencil.BackgroundChains(lambda: cut, m.V, m.F, 0.1, chain=chain, then=fails) as bg:
+        with pytest.raises(PlanningError, match="then failed"):
+            bg.then_result()
+        bg.result()  # the search itself is unharmed
+    gate = threading.Event()
+    bg = pencil.BackgroundChains(lambda: (gate.wait(), cut)[1], m.V, m.F, 0.1, chain=chain, then=then)
+    bg._stop.set()
+    gate.set()
+    assert bg.then_result() is None
+    bg.cancel()
+    assert len(seen) == 1
+    with pencil.BackgroundChains(lambda: cut, m.V, m.F, 0.1, chain=chain) as bg:  # no then
+        assert bg.then_result() is None
 
 
 @pytest.mark.parametrize("pattern", ["zigzag", "contour", "spiral"])

@@ -40,7 +40,7 @@ from numba import njit, prange
 
 from conformill.errors import PlanningError
 
-__all__ = ["FILL_GIVE", "FillResult", "fill_passes"]
+__all__ = ["FILL_GIVE", "FillResult", "fill_passes", "fill_samples"]
 
 log = logging.getLogger(__name__)
 
@@ -129,7 +129,7 @@ def _grid_balls(cutter, P, N, density, grid=None):
 
 def fill_passes(cutter, V, F, passes, h: float, *, depth: float, tol: float, link_max: float, start_xy,
                 density: float = 30.0, settle_tol: float = 0.0, seed: int = 0, give: float = FILL_GIVE,
-                grid=None, progress=None) -> FillResult:
+                grid=None, samples=None, progress=None) -> FillResult:
     """Fill passes through the balls that reach the surface samples ``passes`` left more
     than ``depth * h`` (see the module's text).
 
@@ -161,6 +161,9 @@ def fill_passes(cutter, V, F, passes, h: float, *, depth: float, tol: float, lin
     grid : conformill.folds.DropGrid, optional
         This cutter's fold grid: its heights are used when it has the fill's spacing, with
         the same balls as dropping them anew.
+    samples : tuple, optional
+        :func:`fill_samples` ``(cutter, V, F, density, seed)``, when drawn beforehand (the
+        pipeline draws them in the pencil's worker while it chains the pencil's centres).
     progress : callable, optional
         ``progress(fraction)``.
 
@@ -173,23 +176,13 @@ def fill_passes(cutter, V, F, passes, h: float, *, depth: float, tol: float, lin
     PlanningError
         ``h``, ``depth`` or ``density`` is not a positive number.
     """
-    from conformill.folds import _MAX_GRID, _grid_box
     from conformill.pattern_rest import UncutRows, centre_moves
-    from conformill.pencil import _MAX_SAMPLES, PencilFound, _face_areas, chains_of, link_chains, surface_samples
+    from conformill.pencil import PencilFound, chains_of, link_chains
 
     _check(h, depth, density)
     say = progress or (lambda f: None)
     r = cutter.radius
-    V = np.asarray(V, dtype=np.float64)
-    F = np.asarray(F, dtype=np.int64)
-    areas = _face_areas(V, F)
-    lo, hi = _grid_box(cutter)
-    most = min(0.9 * _MAX_GRID / float(np.prod(hi - lo)), _MAX_SAMPLES / float(areas.sum()))
-    if density > most:  # as the pencil does: a huge part (wrong units?) gets a lower density
-        log.warning("fill: %.3g samples per mm^2 over this part would be more than %dM samples or grid points; "
-                    "using %.3g per mm^2", density, _MAX_SAMPLES // 10**6, most)
-        density = most
-    P, N, _ = surface_samples(V, F, density, seed, areas=areas)
+    P, N, density = fill_samples(cutter, V, F, density, seed) if samples is None else samples
     say(0.1)
     # the samples a grid ball comes within give of, then those the passes left: the same
     # balls as the other way round, with the passes' test on fewer samples
@@ -209,3 +202,25 @@ def fill_passes(cutter, V, F, passes, h: float, *, depth: float, tol: float, lin
              "cl_points": int(out.stats["cl_points"]), "feed_mm": float(out.stats["feed_mm"]),
              "density_per_mm2": float(density), "depth_h": float(depth)}
     return FillResult(passes=out.passes, stats=stats)
+
+
+def fill_samples(cutter, V, F, density: float = 30.0, seed: int = 0):
+    """The fill's area-uniform surface samples facing the tool
+    (:func:`conformill.pencil.surface_samples`): ``(P, N, density)``, the density lowered,
+    with a warning, where the part would give more samples or grid points than the
+    pencil's caps (a huge part: wrong units?)."""
+    from conformill.folds import _MAX_GRID, _grid_box
+    from conformill.pencil import _MAX_SAMPLES, _face_areas, surface_samples
+
+    _check(1.0, 1.0, density)
+    V = np.asarray(V, dtype=np.float64)
+    F = np.asarray(F, dtype=np.int64)
+    areas = _face_areas(V, F)
+    lo, hi = _grid_box(cutter)
+    most = min(0.9 * _MAX_GRID / float(np.prod(hi - lo)), _MAX_SAMPLES / float(areas.sum()))
+    if density > most:  # as the pencil does: a huge part (wrong units?) gets a lower density
+        log.warning("fill: %.3g samples per mm^2 over this part would be more than %dM samples or grid points; "
+                    "using %.3g per mm^2", density, _MAX_SAMPLES // 10**6, most)
+        density = most
+    P, N, _ = surface_samples(V, F, density, seed, areas=areas)
+    return P, N, float(density)

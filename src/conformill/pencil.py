@@ -998,9 +998,14 @@ class BackgroundChains:
         False: run only :func:`pencil_search` (``kwargs`` for it), whose centres the caller
         chains itself once it knows which to keep (``Job.pencil_left``); :meth:`result`
         then gives the :class:`PencilFound`, and nothing is linked.
+    then : callable, optional
+        ``then(cutter)``, run in the worker once its own work is done (after the search
+        with ``chain=False``, else after the links), while the caller chains and links
+        the centres: the fill's samples (:func:`conformill.fill.fill_samples`).
+        :meth:`then_result` gives what it returned.
     """
 
-    def __init__(self, get_cutter, *args, chain: bool = True, **kwargs):
+    def __init__(self, get_cutter, *args, chain: bool = True, then=None, **kwargs):
         import threading
 
         import numba
@@ -1013,6 +1018,8 @@ class BackgroundChains:
         self._go_link = threading.Event()  # link_from() or the end: the worker may go on
         self._link_args = None
         self._found, self._linked, self._error = None, None, None
+        self._then, self._then_out, self._then_error = then, None, None
+        self._then_done = threading.Event()  # then() ended, or will not run
         self._link_error = None  # raised by linked() only for the start it was asked for
         self.busy_s = 0.0  # the search's time
         self.link_s = 0.0  # the links' time
@@ -1035,6 +1042,8 @@ class BackgroundChains:
                                        progress=lambda f: setattr(self, "fraction", f), **self._kwargs)
             self.busy_s = time.perf_counter() - t0
             self._searched.set()
+            if not isinstance(self._found, PencilChains):  # centres only: nothing to link
+                self._run_then(cutter)
             self._go_link.wait()
             if (isinstance(self._found, PencilChains) and self._link_args is not None
                     and not self._stop.is_set()):
@@ -1044,10 +1053,34 @@ class BackgroundChains:
                 except BaseException as exc:  # linked() raises it only if these were the links wanted
                     self._link_error = exc
                 self.link_s = time.perf_counter() - t0
+            self._run_then(cutter)
         except BaseException as exc:  # handed to the caller by result() / linked()
             self._error = exc
         finally:
             self._searched.set()
+            self._then_done.set()
+
+    def _run_then(self, cutter):
+        if self._then is None or self._then_done.is_set() or self._stop.is_set():
+            return
+        try:
+            self._then_out = self._then(cutter)
+        except BaseException as exc:  # then_result() raises it
+            self._then_error = exc
+        self._then_done.set()
+
+    def then_result(self):
+        """What ``then(cutter)`` returned, once it ran (``None`` when it did not: no
+        ``then``, no cutter, the search failed or the worker was stopped); raises what it
+        raised. Waits for it, but not for links :meth:`linked` was not asked for."""
+        if self._then is None:
+            return None
+        if self._link_args is None:
+            self._go_link.set()  # no links asked for: the worker goes on to then()
+        self._then_done.wait()
+        if self._then_error is not None:
+            raise self._then_error
+        return self._then_out
 
     def link_from(self, start_xy, tol: float, link_max: float) -> None:
         """Link the chains from ``start_xy`` in the worker once they are found

@@ -188,12 +188,12 @@ def main(argv=None) -> int:
         sphere_check(r, h, args.wfrac)
     from conformill.cutter import BallCutter
     from conformill.geometry import surface as S
-    from conformill.pipeline import SCAN_RECIPE, Job, plan
+    from conformill.pipeline import Job, plan, scan_recipe
     from conformill.planning.steps import side_interval
 
     mesh, samples = _common.scan_study(args)
     job = Job(pattern=args.pattern, tool_radius=r, scallop=h, tolerance=e, spacing=args.spacing,
-              **(SCAN_RECIPE if args.scan else {}))
+              **(scan_recipe(args.pattern) if args.scan else {}))
     w = args.wfrac * float(side_interval(h, r, np.zeros(1))[0][0])
     print(f"{mesh.name}: {mesh.n_faces} faces; {args.pattern}{' --scan' if args.scan else ''}, r = {r:g}, "
           f"h = {h:g}, e = {e:g}, {args.spacing} spacing; w = {w:.4f} mm, lift at most {args.lift_max:g} h", flush=True)

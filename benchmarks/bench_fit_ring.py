@@ -43,11 +43,11 @@ def main(argv=None) -> int:
     if any(k < 1 for k in args.rings):
         ap.error("rings are 1 or more")
     from conformill.geometry import differential as D
-    from conformill.pipeline import SCAN_RECIPE, Job, plan
+    from conformill.pipeline import Job, plan, scan_recipe
 
     h, r, e = args.h, args.r, args.e
     mesh, samples = _common.scan_study(args)
-    job = Job(pattern=args.pattern, tool_radius=r, scallop=h, tolerance=e, **(SCAN_RECIPE if args.scan else {}))
+    job = Job(pattern=args.pattern, tool_radius=r, scallop=h, tolerance=e, **(scan_recipe(args.pattern) if args.scan else {}))
     print(f"{mesh.name}: {mesh.n_faces} faces; {args.pattern}{' --scan' if args.scan else ''}, r = {r:g}, "
           f"h = {h:g}, e = {e:g}", flush=True)
     own = D._fit_1ring

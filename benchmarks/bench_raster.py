@@ -85,7 +85,7 @@ Usage::
 ``--pencil SEARCH`` plans every conformill program with ``--pencil --pencil-search SEARCH``
 (and ``--pencil-density D``, default 30), so that the table puts the programs that meet
 1.05 h on the scans beside the raster, timed in the same run. ``--scan`` plans them with
-``conformill plan --scan``'s recipe instead (:data:`conformill.pipeline.SCAN_RECIPE`: the
+``conformill plan --scan``'s recipe instead (:func:`conformill.pipeline.scan_recipe`: the
 fold pencil at ``--pencil-density``, cut where the pattern left more than 0.5 h, hops over
 runs lifted 3 mm; session 38), the settings the README gives for scanned parts.
 
@@ -251,9 +251,9 @@ SCAN = False
 
 
 def _job(pattern, r, h, e, feed=1000.0):
-    from conformill.pipeline import SCAN_RECIPE, Job
+    from conformill.pipeline import Job, scan_recipe
 
-    pencil = dict(SCAN_RECIPE) if SCAN else {"pencil": PENCIL is not None, "pencil_search": PENCIL or "samples"}
+    pencil = scan_recipe(pattern) if SCAN else {"pencil": PENCIL is not None, "pencil_search": PENCIL or "samples"}
     return Job(pattern=pattern, tool_radius=r, scallop=h, tolerance=e, feed=feed, spacing=SPACING,
                pencil_density=PENCIL_DENSITY, **pencil)
 

@@ -21,7 +21,7 @@ length and the time for the knobs that densify the program:
   session 27): the runs lifted more than L mm are hopped over where that is quicker;
 * ``..., left 0.5``: the same fold pencil cut only through the fold points where the
   pattern's passes left more than 0.5 h (``Job.pencil_left``, ``--pencil-left``; session 31);
-* ``scan`` (``, planned F h``): ``plan --scan`` (:data:`conformill.pipeline.SCAN_RECIPE`,
+* ``scan`` (``, planned F h``): ``plan --scan`` (:func:`conformill.pipeline.scan_recipe`,
   session 35), with the paths spaced for ``F h``; ``scan, no fill``: the recipe of sessions
   35-52, without the fill stage and with the pattern's paths spaced for h; ``scan, paths
   for F h``: the recipe with the pattern's paths spaced for ``F h`` (its own: 1.3 h) and
@@ -98,9 +98,9 @@ for _L in (1.0, 3.0, 6.0):
     VARIANTS[f"hop {_L:g}, pencil folds, density 20"] = ({"hop_lift": _L, "pencil": True, "pencil_search": "folds",
                                                          "pencil_density": 20.0}, 1.0, False)
 # session 35: plan --scan (pipeline.SCAN_RECIPE), and with the paths planned for less than h
-from conformill.pipeline import SCAN_RECIPE  # noqa: E402
+from conformill.pipeline import SCAN_RECIPE, scan_recipe  # noqa: E402
 
-for _f in (1.0, 0.9, 0.8):
+for _f in (1.0, 0.9, 0.8):  # (the pattern's own pattern_scallop is added in main: pipeline.scan_recipe)
     VARIANTS["scan" if _f == 1.0 else f"scan, planned {_f:g} h"] = (dict(SCAN_RECIPE), _f, False)
 # session 53: the recipe before its fill (the pattern's paths spaced for h, no fill passes:
 # sessions 35-52's --scan), and the fill with the paths spaced for F h
@@ -166,6 +166,8 @@ def main(argv=None) -> int:
         folder.mkdir(parents=True, exist_ok=True)
         for name in args.variants:
             over, factor, fine = VARIANTS[name]
+            if over.get("fill") is not None and "pattern_scallop" not in over:  # the recipe's, for this pattern
+                over = {**over, "pattern_scallop": scan_recipe(args.pattern)["pattern_scallop"]}
             if fine and split is None:
                 split = split_once(mesh, "_split")
             job = Job(pattern=args.pattern, tool_radius=r, scallop=factor * h, tolerance=e, **over)

@@ -110,14 +110,14 @@ def main(argv=None) -> int:
     from conformill.cutter import BallCutter
     from conformill.geometry.differential import surface_frame
     from conformill.mesh.split import split_midpoints
-    from conformill.pipeline import SCAN_RECIPE, Job, plan
+    from conformill.pipeline import Job, plan, scan_recipe
     from conformill.planning.steps import scallop_height
     from conformill.verify.rest import rest_material
 
     h, r, e = args.h, args.r, args.e
     mesh, samples = _common.scan_study(args)
     job = Job(pattern=args.pattern, tool_radius=r, scallop=args.planned * h, tolerance=e, settle=args.settle,
-              fit=args.fit, **(SCAN_RECIPE if args.scan else {}))
+              fit=args.fit, **(scan_recipe(args.pattern) if args.scan else {}))
     print(f"{mesh.name}: {mesh.n_faces} faces; {args.pattern}, r = {r:g}, h = {h:g}, e = {e:g}, fit {args.fit}, "
           f"settle {args.settle:g}, planned {args.planned:g} h{', scan recipe' if args.scan else ''}", flush=True)
     t0 = time.perf_counter()

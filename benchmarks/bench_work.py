@@ -97,7 +97,7 @@ def main(argv=None) -> int:
 
     import numba
 
-    from conformill.pipeline import SCAN_RECIPE, Job, orient_mesh, plan
+    from conformill.pipeline import Job, orient_mesh, plan, scan_recipe
 
     logging.disable(logging.WARNING)
     mesh, _ = orient_mesh(_common.study_mesh(args.mesh, args.scale), "none")
@@ -110,9 +110,9 @@ def main(argv=None) -> int:
     speedup = t1 / tn
     print(f"reference: the drop of {n} grid points {t1:.3f} s on one thread, {tn:.3f} s on {threads}: "
           f"x{speedup:.2f}")
-    recipe = {} if args.default else dict(SCAN_RECIPE)
     rows = []
     for pat in args.patterns:
+        recipe = {} if args.default else scan_recipe(pat)
         job = Job(pattern=pat, tool_radius=args.r, scallop=args.h, tolerance=args.e, **recipe)
         plan(mesh, job)  # (numba's caches and the first-plan costs: not timed)
         numba.set_num_threads(1)

@@ -1,4 +1,4 @@
-"""``plan --scan``: the scan recipe (:data:`conformill.pipeline.SCAN_RECIPE`) as one option."""
+"""``plan --scan``: the scan recipe (:func:`conformill.pipeline.scan_recipe`) as one option."""
 
 from __future__ import annotations
 
@@ -7,7 +7,8 @@ import re
 import pytest
 
 from conformill.cli.main import main
-from conformill.pipeline import SCAN_RECIPE
+from conformill.errors import JobValueError
+from conformill.pipeline import SCAN_PATTERN_SCALLOP, SCAN_RECIPE, scan_recipe
 
 COMMON = ["plan", "sample:patch", "--tool-radius", "4", "--scallop", "0.1", "-q", "--pattern", "contour"]
 
@@ -20,23 +21,32 @@ def test_help_names_the_recipe(capsys):
     assert main(["plan", "--help"]) == 0
     text = re.sub(r"(\w)- (\w)", r"\1-\2", " ".join(capsys.readouterr().out.split()))  # argparse wraps at hyphens
     said = (f"--pencil --pencil-search {SCAN_RECIPE['pencil_search']} --pencil-left {SCAN_RECIPE['pencil_left']:g} "
-            f"--hop-lifted {SCAN_RECIPE['hop_lift']:g} --pattern-scallop {SCAN_RECIPE['pattern_scallop']:g} "
+            f"--hop-lifted {SCAN_RECIPE['hop_lift']:g} --pattern-scallop {SCAN_PATTERN_SCALLOP['zigzag']:g} "
+            f"({SCAN_PATTERN_SCALLOP['contour']:g} contour, {SCAN_PATTERN_SCALLOP['spiral']:g} spiral) "
             f"--fill {SCAN_RECIPE['fill']:g}")
     assert SCAN_RECIPE["pencil"] and said in text
+
+
+def test_the_recipe_by_pattern():
+    for pattern, f in SCAN_PATTERN_SCALLOP.items():
+        assert scan_recipe(pattern) == {**SCAN_RECIPE, "pattern_scallop": f}
+    assert "pattern_scallop" not in SCAN_RECIPE  # (only with its pattern)
+    with pytest.raises(JobValueError, match="unknown pattern 'raster'"):
+        scan_recipe("raster")
 
 
 def test_scan_writes_the_same_bytes_as_its_six_options(tmp_path):
     a, b = tmp_path / "scan.nc", tmp_path / "explicit.nc"
     assert main(COMMON + ["--scan", "-o", str(a)]) == 0
     assert main(COMMON + ["--pencil", "--pencil-search", "folds", "--pencil-left", "0.5", "--hop-lifted", "3",
-                          "--pattern-scallop", "1.3", "--fill", "0.7", "-o", str(b)]) == 0
+                          "--pattern-scallop", "1.5", "--fill", "0.7", "-o", str(b)]) == 0
     assert a.read_bytes() == b.read_bytes()
     head = _header(a)
     assert "(param pencil: folds, grid points per mm2 30, where the pattern leaves above 0.5 H)" in head
     assert "(param hop lifted: runs lifted more than 3 mm, rapid 5000)" in head
     # the shipped patch is smooth: the fill of its wider paths was longer than they saved, so
     # it was planned again without them, and the header says so
-    assert ("(param fill: none: the fill above 0.7 H of paths spaced for 1.3 H was longer than the spacing saved; "
+    assert ("(param fill: none: the fill above 0.7 H of paths spaced for 1.5 H was longer than the spacing saved; "
             "paths spaced for H)") in head
 
 

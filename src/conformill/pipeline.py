@@ -32,10 +32,28 @@ PATTERNS = ("zigzag", "contour", "spiral")
 #: pattern's passes left more than 0.5 H, and hops over the runs lifted more than 3 mm.
 #: On igea zigzag (r = 4, h = e = 0.01) it left 1.039 h at 22.8-24.0x OpenCAMLib's raster
 #: (session 35; docs/issue5.md and the README's "Issue 5: scale and the raster").
-#: Since session 53 it also spaces the pattern for 1.3 h and fills where the passes left
-#: more than 0.7 h (:mod:`conformill.fill`): igea zigzag 1.033 h for 7 % less feed.
-SCAN_RECIPE = {"pencil": True, "pencil_search": "folds", "pencil_left": 0.5, "hop_lift": 3.0, "fill": 0.7,
-               "pattern_scallop": 1.3}
+#: Since session 53 it also fills where the passes left more than 0.7 h
+#: (:mod:`conformill.fill`) and spaces the pattern wider, by pattern
+#: (:data:`SCAN_PATTERN_SCALLOP`): the whole recipe for a pattern is :func:`scan_recipe`.
+SCAN_RECIPE = {"pencil": True, "pencil_search": "folds", "pencil_left": 0.5, "hop_lift": 3.0, "fill": 0.7}
+#: ``Job.pattern_scallop`` with ``plan --scan``, by pattern. Session 53 chose 1.3 for all
+#: three on the zigzag (igea 1.033 h for 7 % less feed; 1.5 left igea and the shipped face at
+#: or above 1.05 h). The contour and spiral rings leave less where they are tight (igea
+#: 1.016 / 1.015 h at 1.3): session 54 spaced the contour for 1.5 h (igea 1.026 h, 5 % less
+#: feed, its plan 9 % quicker) and the spiral for 1.7 h (igea 1.020-1.024 h, 10 % less feed,
+#: 13 % quicker), every other scan within 1.05 h as at 1.3. The contour at 1.7 left igea
+#: 1.034-1.038 h and made the shipped patch 13 % longer: there the side step is at the flat
+#: cap already, the wider spacing saves little, and the widening test (:func:`plan`) kept a
+#: fill it should have dropped (docs/issue5.md, "Session 54").
+SCAN_PATTERN_SCALLOP = {"zigzag": 1.3, "contour": 1.5, "spiral": 1.7}
+
+
+def scan_recipe(pattern: str) -> dict:
+    """The :class:`Job` fields ``plan --scan`` sets for ``pattern``: :data:`SCAN_RECIPE` and
+    the pattern's :data:`SCAN_PATTERN_SCALLOP`."""
+    if pattern not in SCAN_PATTERN_SCALLOP:
+        raise JobValueError(f"unknown pattern {pattern!r}; expected one of {', '.join(PATTERNS)}")
+    return {**SCAN_RECIPE, "pattern_scallop": SCAN_PATTERN_SCALLOP[pattern]}
 
 
 @dataclass(frozen=True)
@@ -145,9 +163,10 @@ class Job:
     pattern_scallop : float
         The pattern's paths are spaced for this many ``h`` (default 1); above 1 only with
         ``fill``, which brings what the wider paths leave back under ``h``. ``plan --scan``
-        spaces them for 1.3 h and fills above 0.7 h (session 53: 27 of the 33 benchmark
-        programs within 1.05 h where 25 were, up to 11 % shorter on the scans, longer on
-        smooth CAD parts; docs/issue5.md, "Session 53").
+        spaces them for 1.3 / 1.5 / 1.7 h (zigzag / contour / spiral; :data:`SCAN_PATTERN_SCALLOP`)
+        and fills above 0.7 h (session 53: 27 of the 33 benchmark programs within 1.05 h where
+        25 were, up to 11 % shorter on the scans; docs/issue5.md, "Session 53" and
+        "Session 54").
     blend : float, "off" or None
         The path control the program asks of the controller
         (:func:`conformill.output.gcode.path_control`): stay within this many mm of the

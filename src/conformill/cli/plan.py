@@ -77,13 +77,14 @@ def add_arguments(p) -> None:
                         "no ball reaches within 0.5 H is left to the pencil (default: no fill; 0.7 with --scan, "
                         "where off leaves it out and spaces the pattern for H)")
     p.add_argument("--pattern-scallop", type=float, default=None, metavar="F",
-                   help="space the pattern's paths for F H (default 1; 1.3 with --scan); above 1 it needs --fill, "
-                        "which cuts what the wider paths leave above T H")
+                   help="space the pattern's paths for F H (default 1; with --scan 1.3 for zigzag, 1.5 for contour, "
+                        "1.7 for spiral); above 1 it needs --fill, which cuts what the wider paths leave above T H")
     p.add_argument("--scan", action="store_true",
                    help="settings for a scanned part: --pencil --pencil-search folds --pencil-left 0.5 "
-                        "--hop-lifted 3 --pattern-scallop 1.3 --fill 0.7, each unless given (with --pencil-search "
-                        "samples, no --pencil-left). R4, H 0.01: 27 of 33 benchmark programs within 1.05 H (25 without "
-                        "the last two), up to 11 %% shorter on the scans, longer on smooth CAD parts (session 53)")
+                        "--hop-lifted 3 --pattern-scallop 1.3 (1.5 contour, 1.7 spiral) --fill 0.7, each unless "
+                        "given (with --pencil-search samples, no --pencil-left). R4, H 0.01: 27 of 33 benchmark "
+                        "programs within 1.05 H (25 without the last two), up to 11 %% shorter on the scans "
+                        "(sessions 53-54)")
     p.add_argument("--hop-lifted", type=float, default=None, metavar="L",
                    help="hop over runs of the path where the drop-cutter lifts the ball more than L mm above "
                         "its planned contact (undercuts, pockets tighter than the ball) where the hop is quicker "
@@ -162,7 +163,7 @@ def _fill(text: str):
 def _scan_defaults(args) -> None:
     """Fill the options ``--scan`` sets (:data:`conformill.pipeline.SCAN_RECIPE`) where the
     command line left them unset; ``--hop-lifted`` unset and no ``--scan`` is 0 (off)."""
-    from conformill.pipeline import SCAN_RECIPE
+    from conformill.pipeline import SCAN_RECIPE, scan_recipe
 
     if args.scan:
         args.pencil = True
@@ -175,7 +176,7 @@ def _scan_defaults(args) -> None:
         if args.fill is None:
             args.fill = SCAN_RECIPE["fill"]
         if args.pattern_scallop is None and args.fill != "off":  # wider paths only with the fill
-            args.pattern_scallop = SCAN_RECIPE["pattern_scallop"]
+            args.pattern_scallop = scan_recipe(args.pattern)["pattern_scallop"]
     if args.hop_lifted is None:
         args.hop_lifted = 0.0
     if args.pattern_scallop is None:

@@ -162,8 +162,9 @@ def fill_passes(cutter, V, F, passes, h: float, *, depth: float, tol: float, lin
         This cutter's fold grid: its heights are used when it has the fill's spacing, with
         the same balls as dropping them anew.
     samples : tuple, optional
-        :func:`fill_samples` ``(cutter, V, F, density, seed)``, when drawn beforehand (the
-        pipeline draws them in the pencil's worker while it chains the pencil's centres).
+        What :func:`fill_samples` returned for this part, ``density`` and ``seed``,
+        ``(P, N, density used)``, when drawn beforehand (the pipeline draws them in the
+        pencil's worker while it chains the pencil's centres).
     progress : callable, optional
         ``progress(fraction)``.
 

@@ -1002,7 +1002,8 @@ class BackgroundChains:
         ``then(cutter)``, run in the worker once its own work is done (after the search
         with ``chain=False``, else after the links), while the caller chains and links
         the centres: the fill's samples (:func:`conformill.fill.fill_samples`).
-        :meth:`then_result` gives what it returned.
+        :meth:`then_result` gives what it returned. With ``chain=True`` it runs after the
+        links, so :meth:`linked`, which waits for the worker's end, waits for it too.
     """
 
     def __init__(self, get_cutter, *args, chain: bool = True, then=None, **kwargs):

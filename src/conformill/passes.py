@@ -55,10 +55,19 @@ def hops_into(cutter, start, pieces) -> list:
         return []
     A = np.vstack([np.asarray(start, dtype=np.float64).reshape(1, 3)] + [p[-1:] for p in pieces[:-1]])
     B = np.vstack([p[:1] for p in pieces])
-    H = np.maximum(np.maximum(A[:, 2], B[:, 2]), cutter.clear_height(A[:, :2], B[:, :2], clearance=HOP_CLEARANCE))
-    Hb = np.clip(cutter.clear_height(B[:, :2], B[:, :2], clearance=HOP_CLEARANCE), B[:, 2], H)
+    H, Hb = hop_heights(cutter, A, B)
     r = cutter.radius
     return [(float(x - r), float(y - r)) for x, y in zip(H, Hb)]
+
+
+def hop_heights(cutter, A, B):
+    """The centre heights ``(H, Hb)`` of hops from centres ``A`` to centres ``B`` (``(k, 3)``
+    each): across at ``H``, where the ball clears the part by :data:`HOP_CLEARANCE` all
+    along the XY segment (and no lower than either end), then down by rapid to ``Hb``, where
+    the ball is still that clear above ``B`` (between ``B`` and ``H``), then the plunge."""
+    H = np.maximum(np.maximum(A[:, 2], B[:, 2]), cutter.clear_height(A[:, :2], B[:, :2], clearance=HOP_CLEARANCE))
+    Hb = np.clip(cutter.clear_height(B[:, :2], B[:, :2], clearance=HOP_CLEARANCE), B[:, 2], H)
+    return H, Hb
 
 
 def threads_can_overlap() -> bool:
@@ -569,11 +578,7 @@ class PassBuilder:
             # summed per run (not as a difference of running sums): the same figure
             # whichever batch the run is decided in
             ride = np.array([step[a - 1:b].sum() for a, b in zip(ra, rb)]) / self.feed
-            # across at a height clear of the part along A -> B; down by rapid to where the
-            # ball is clear above B, then the plunge
-            H = np.maximum(np.maximum(A[:, 2], B[:, 2]),
-                           self.cutter.clear_height(A[:, :2], B[:, :2], clearance=HOP_CLEARANCE))
-            Hb = np.clip(self.cutter.clear_height(B[:, :2], B[:, :2], clearance=HOP_CLEARANCE), B[:, 2], H)
+            H, Hb = hop_heights(self.cutter, A, B)
             hop = ((H - A[:, 2]) + np.hypot(*(B[:, :2] - A[:, :2]).T) + (H - Hb)) / self.rapid \
                 + (Hb - B[:, 2]) / self.plunge
             go = hop < ride

@@ -138,26 +138,25 @@ def add_arguments(p) -> None:
                         "written and the report's replan lists every round. Implies --verify. Default 0: none")
 
 
-def _blend(text: str):
-    """``--blend``: "off" or a number (argparse reports anything else, exit 2)."""
-    if text.strip().lower() == "off":
-        return "off"
-    try:
-        if "_" in text:
-            raise ValueError
-        return float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number (mm) or off, got {text!r}") from None
+def _number_or_off(unit: str):
+    """An argparse type: "off" or a number (``unit`` in the message; argparse reports
+    anything else, exit 2)."""
+
+    def parse(text: str):
+        if text.strip().lower() == "off":
+            return "off"
+        try:
+            if "_" in text:
+                raise ValueError
+            return float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number ({unit}) or off, got {text!r}") from None
+
+    return parse
 
 
-def _fill(text: str):
-    """``--fill``: a number (x H), or ``off``."""
-    if text == "off":
-        return "off"
-    try:
-        return float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number (x H) or off, got {text!r}") from None
+_blend = _number_or_off("mm")  # --blend
+_fill = _number_or_off("x H")  # --fill
 
 
 def _scan_defaults(args) -> None:

@@ -92,6 +92,14 @@ def test_bad_values_are_refused(flat, kw):
         fill_passes(cut, m.V, m.F, _rows(0.5), H, tol=E, link_max=8.0, start_xy=(0.0, 0.0), **args)
 
 
+def test_samples_drawn_beforehand_refuse_a_bad_density(flat):
+    from conformill.fill import fill_samples
+
+    m, cut = flat
+    with pytest.raises(PlanningError, match="fill: fill density must be a positive number, got -1.0"):
+        fill_samples(cut, m.V, m.F, -1.0)
+
+
 @pytest.mark.parametrize("kw, said", [({"fill": 0.0}, "fill must be"), ({"fill": float("inf")}, "fill must be"),
                                       ({"pattern_scallop": 0.0}, "pattern-scallop must be"),
                                       ({"pattern_scallop": 1.3}, "needs --fill")])

@@ -69,10 +69,12 @@ class FillResult:
     stats: dict = field(default_factory=dict)
 
 
-def _check(h, depth, density):
-    for name, v in (("scallop", h), ("fill depth", depth), ("fill density", density)):
+def _check(**values):
+    """PlanningError unless each value (named by its keyword, ``_`` for a space) is a
+    positive number."""
+    for name, v in values.items():
         if not (math.isfinite(v) and v > 0):
-            raise PlanningError(f"fill: {name} must be a positive number, got {v}")
+            raise PlanningError(f"fill: {name.replace('_', ' ')} must be a positive number, got {v}")
 
 
 @njit(cache=True, nogil=True, parallel=True)
@@ -180,7 +182,7 @@ def fill_passes(cutter, V, F, passes, h: float, *, depth: float, tol: float, lin
     from conformill.pattern_rest import UncutRows, centre_moves
     from conformill.pencil import PencilFound, chains_of, link_chains
 
-    _check(h, depth, density)
+    _check(scallop=h, fill_depth=depth, fill_density=density)
     say = progress or (lambda f: None)
     r = cutter.radius
     P, N, density = fill_samples(cutter, V, F, density, seed) if samples is None else samples
@@ -213,7 +215,7 @@ def fill_samples(cutter, V, F, density: float = 30.0, seed: int = 0):
     from conformill.folds import _MAX_GRID, _grid_box
     from conformill.pencil import _MAX_SAMPLES, _face_areas, surface_samples
 
-    _check(1.0, 1.0, density)
+    _check(fill_density=density)
     V = np.asarray(V, dtype=np.float64)
     F = np.asarray(F, dtype=np.int64)
     areas = _face_areas(V, F)

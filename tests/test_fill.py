@@ -114,7 +114,7 @@ def test_a_plan_with_wider_paths_and_the_fill_stays_within_the_scallop():
     # samples left above it (one plan, without the test of the widening: on a part this
     # smooth plan() drops the fill, below)
     from conformill.mesh.synthetic import sphere_cap
-    from conformill.pipeline import _plan_once, plan
+    from conformill.pipeline import _plan_once, plan, widening_ratio
 
     m = sphere_cap(R=60.0, radius_xy=12.0, spacing=0.6)
     h = 0.02
@@ -133,23 +133,63 @@ def test_a_plan_with_wider_paths_and_the_fill_stays_within_the_scallop():
     assert filled.report["paths"]["planned_paths"] < base.report["paths"]["planned_paths"]
     assert left(filled, 0.7, seed=0) == 0
     # the test of the widening: on this smooth cap the fill is longer than the wider paths
-    # saved (sqrt(1.3) - 1 of the pattern's feed), so plan() plans again with the pattern
-    # spaced for h and no fill: the same passes as that plan
+    # saved (widening_ratio - 1 of the pattern's feed), so plan() plans again with the
+    # pattern spaced for h and no fill: the same passes as that plan
     feed = lambda ps: sum(np.linalg.norm(np.diff(q, axis=0), axis=1).sum() for q in ps)  # noqa: E731
     fill_feed = filled.report["fill"]["feed_mm"]
     pattern = [q for q, i in zip(filled.toolpath.passes, filled.toolpath.pass_ids) if i >= 0]
-    assert fill_feed > (math.sqrt(1.3) - 1) * feed(pattern)
+    ratio = widening_ratio(filled.domain_paths)
+    assert fill_feed > (ratio - 1) * feed(pattern)
     dropped = plan(m, job)
     assert dropped.report["fill"]["dropped"] and dropped.report["fill"]["feed_mm"] == fill_feed
+    assert dropped.report["fill"]["widening_ratio"] == ratio
+    assert all(p.widening == 1.0 for p in dropped.domain_paths.paths)
     assert dropped.report["job"]["pattern_scallop"] == 1.0 and dropped.report["job"]["fill"] is None
     assert len(dropped.toolpath.passes) == len(base.toolpath.passes)
     for a, b in zip(dropped.toolpath.passes, base.toolpath.passes):
         np.testing.assert_array_equal(a, b)
 
 
+@pytest.mark.parametrize("sphere_r, capped", [(60.0, True), (8.0, False)])
+def test_the_widening_is_read_from_the_side_intervals_on_a_sphere(sphere_r, capped):
+    # on a convex sphere of radius Rs every sample's curvature across the paths is -1 / Rs,
+    # so every path's step grows by the same factor. The flat cap (the flat interval at h)
+    # holds the step spaced for 1.3 h where 1 + r / Rs < 1.3 (Rs = 60): the saving is then
+    # cap / l_s(h) (about sqrt(1 + r / Rs)); on a tighter sphere (Rs = 8) neither step is
+    # capped and it is l_s(1.3 h) / l_s(h) (about sqrt(1.3))
+    from conformill.mesh.synthetic import sphere_cap
+    from conformill.pipeline import _plan_once, widening_ratio
+    from conformill.planning.steps import side_interval
+
+    h = 0.02
+    m = sphere_cap(R=sphere_r, radius_xy=min(12.0, 0.7 * sphere_r), spacing=0.4)
+    res = _plan_once(m, Job(pattern="zigzag", tool_radius=R, scallop=h, tolerance=E, pattern_scallop=1.3,
+                            fill=0.7))
+    k = -1.0 / sphere_r
+    at_h = float(side_interval(h, R, k)[0])
+    flat_h = float(side_interval(h, R, 0.0)[0])
+    wide = float(side_interval(1.3 * h, R, k)[0])
+    assert (wide > flat_h) == capped
+    expected = (flat_h if capped else wide) / at_h
+    inner = [p.widening for p in res.domain_paths.paths[:-1]]
+    assert res.domain_paths.paths[-1].widening == 1.0
+    np.testing.assert_allclose(inner, expected, rtol=5e-3)  # (the rim rows: fitted curvature)
+    assert widening_ratio(res.domain_paths) == pytest.approx(expected, rel=2e-3)
+
+
+def test_on_a_plane_the_flat_cap_leaves_nothing_to_save():
+    # spaced for 1.3 h or for h, every step on a plane is the flat interval at h (the cap)
+    from conformill.pipeline import _plan_once, widening_ratio
+
+    res = _plan_once(plane(size=16.0, spacing=0.5), Job(pattern="contour", tool_radius=R, scallop=0.02,
+                                                         tolerance=E, pattern_scallop=1.3, fill=0.7))
+    assert widening_ratio(res.domain_paths) == 1.0
+    assert all(p.widening == 1.0 for p in res.domain_paths.paths)
+
+
 def test_a_fill_shorter_than_the_saving_is_kept(monkeypatch):
-    # the same rule the other way: a fill whose feed is below sqrt(F) - 1 of the pattern's
-    # is kept (here the fill's feed is reported as 0)
+    # the same rule the other way: a fill whose feed is below widening_ratio - 1 of the
+    # pattern's is kept (here the fill's feed is reported as 0)
     import conformill.pipeline as pl
     from conformill.mesh.synthetic import sphere_cap
 
@@ -165,6 +205,31 @@ def test_a_fill_shorter_than_the_saving_is_kept(monkeypatch):
     m = sphere_cap(R=60.0, radius_xy=12.0, spacing=0.6)
     res = pl.plan(m, Job(pattern="zigzag", tool_radius=R, scallop=0.02, tolerance=E, pattern_scallop=1.3, fill=0.7))
     assert not res.report["fill"].get("dropped") and res.report["job"]["pattern_scallop"] == 1.3
+
+
+@pytest.mark.parametrize("share, dropped", [(1.0, False), (1.2, False), (1.3, True)])
+def test_the_fill_is_kept_up_to_its_share_of_the_saving(monkeypatch, share, dropped):
+    # the fill's feed reported as `share` times what the wider paths saved: kept up to
+    # FILL_OVER_SAVING (1.25) times, dropped above (the plan spaced for h, no fill)
+    import conformill.pipeline as pl
+    from conformill.mesh.synthetic import sphere_cap
+
+    assert pl.FILL_OVER_SAVING == 1.25
+    once = pl._plan_once
+
+    def fill_of(mesh, job, progress=None):
+        res = once(mesh, job, progress)
+        if res.report["fill"] is not None:
+            pattern = [q for q, i in zip(res.toolpath.passes, res.toolpath.pass_ids) if i >= 0]
+            feed = sum(np.linalg.norm(np.diff(q, axis=0), axis=1).sum() for q in pattern)
+            res.report["fill"]["feed_mm"] = share * (pl.widening_ratio(res.domain_paths) - 1.0) * feed
+        return res
+
+    monkeypatch.setattr(pl, "_plan_once", fill_of)
+    m = sphere_cap(R=8.0, radius_xy=5.6, spacing=0.4)
+    res = pl.plan(m, Job(pattern="zigzag", tool_radius=R, scallop=0.02, tolerance=E, pattern_scallop=1.3, fill=0.7))
+    assert bool(res.report["fill"].get("dropped")) == dropped
+    assert res.report["job"]["pattern_scallop"] == (1.0 if dropped else 1.3)
 
 
 def test_the_hops_into_later_passes_clear_the_part(flat):

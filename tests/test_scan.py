@@ -39,15 +39,18 @@ def test_scan_writes_the_same_bytes_as_its_six_options(tmp_path):
     a, b = tmp_path / "scan.nc", tmp_path / "explicit.nc"
     assert main(COMMON + ["--scan", "-o", str(a)]) == 0
     assert main(COMMON + ["--pencil", "--pencil-search", "folds", "--pencil-left", "0.5", "--hop-lifted", "3",
-                          "--pattern-scallop", "1.5", "--fill", "0.7", "-o", str(b)]) == 0
+                          "--pattern-scallop", f"{SCAN_PATTERN_SCALLOP['contour']:g}", "--fill", "0.7", "-o",
+                          str(b)]) == 0
     assert a.read_bytes() == b.read_bytes()
     head = _header(a)
     assert "(param pencil: folds, grid points per mm2 30, where the pattern leaves above 0.5 H)" in head
     assert "(param hop lifted: runs lifted more than 3 mm, rapid 5000)" in head
     # the shipped patch is smooth: the fill of its wider paths was longer than they saved, so
     # it was planned again without them, and the header says so
-    assert ("(param fill: none: the fill above 0.7 H of paths spaced for 1.5 H was longer than the spacing saved; "
-            "paths spaced for H)") in head
+    said = [ln for ln in head if ln.startswith("(param fill: none: the fill above 0.7 H of paths spaced for "
+            f"{SCAN_PATTERN_SCALLOP['contour']:g} H was ")]
+    assert len(said) == 1 and said[0].endswith(" times what the spacing saved; paths spaced for H)")
+    assert float(said[0].split(" was ")[1].split()[0]) > 1.25
 
 
 def test_given_options_win_over_the_recipe(tmp_path):

@@ -8,7 +8,6 @@ reachability -> pattern in the domain -> forward steps and CC points -> ball-cut
 from __future__ import annotations
 
 import logging
-import math
 import time
 from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass, replace
@@ -22,7 +21,7 @@ from conformill.output.gcode import coolant_on, path_control, tool_number
 from conformill.patterns.family import Planner
 from conformill.passes import PassBuilder, hops_into, serial_caller, threads_can_overlap
 from conformill.planning.steps import check_ball_size, check_meetable, check_params, check_resolution, side_interval
-from conformill.types import PENCIL_SEARCHES, Mesh, PathParams, PlanResult, ToolPath
+from conformill.types import PENCIL_SEARCHES, DomainPaths, Mesh, PathParams, PlanResult, ToolPath
 
 log = logging.getLogger(__name__)
 
@@ -46,6 +45,16 @@ SCAN_RECIPE = {"pencil": True, "pencil_search": "folds", "pencil_left": 0.5, "ho
 #: cap already, the wider spacing saves little, and the widening test (:func:`plan`) kept a
 #: fill it should have dropped (docs/issue5.md, "Session 54").
 SCAN_PATTERN_SCALLOP = {"zigzag": 1.3, "contour": 1.5, "spiral": 1.7}
+
+
+#: :func:`plan` keeps the fill while its feed is at most this times what the wider paths
+#: saved (:func:`widening_ratio`). Above 1: on a scan the fill also cuts what the planner's
+#: curvature misreads, which paths spaced for h leave too (session 51, before the fill:
+#: choi and the shipped face zigzag ``--scan`` left 1.21 and 1.16 h; with it 0.97 and
+#: 0.96 h). There, at 1.3 h, the fill costs 1.00 and 1.09 times the saving; on the beetle
+#: roof zigzag 1.56 times (0.83 h without it) and on the shipped patch 2.2-6.4 times:
+#: dropped (docs/issue5.md, "Session 55").
+FILL_OVER_SAVING = 1.25
 
 
 def scan_recipe(pattern: str) -> dict:
@@ -552,12 +561,15 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
     """Plan a ball-end finishing program for ``mesh``.
 
     The fill's test of its own widening: with ``job.pattern_scallop`` F above 1 and the
-    fill, when the fill's feed is more than the wider paths saved (``sqrt(F) - 1`` of the
-    pattern's feed: the side step grows as the square root of the scallop), the part is
-    planned again with the pattern spaced for h and no fill. That is a smooth part, where
-    the wider rows leave more than the fill's depth along most of each gap and the fill
-    would cut it all. The report's ``fill`` then holds the first plan's figures with
-    ``"dropped": True``, and its ``timings_s`` the two plans' sum.
+    fill, when the fill's feed is more than :data:`FILL_OVER_SAVING` times what the wider
+    paths saved, the part is planned again with the pattern spaced for h and no fill. The saving is read from the pattern's
+    own paths (:func:`widening_ratio`): how much wider each path's step is than a step
+    spaced for h, about ``sqrt(F)`` where the curvature sets the step and 1 where the
+    flat cap (``Job.concave_steps``) holds it at both. Dropped on a smooth part, where the
+    wider rows leave more than the fill's depth along most of each gap and the fill would
+    cut it all, and where the cap leaves little to save. The report's ``fill`` then holds
+    the first plan's figures with ``"dropped": True``, and its ``timings_s`` the two
+    plans' sum.
 
     Parameters
     ----------
@@ -592,8 +604,9 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
         return res
     pattern = [q for q, i in zip(res.toolpath.passes, res.toolpath.pass_ids) if i >= 0]
     pattern_feed = float(sum(np.linalg.norm(np.diff(q, axis=0), axis=1).sum() for q in pattern))
-    saved = (math.sqrt(job.pattern_scallop) - 1.0) * pattern_feed
-    if fill["feed_mm"] <= saved:
+    ratio = widening_ratio(res.domain_paths)
+    saved = (ratio - 1.0) * pattern_feed
+    if fill["feed_mm"] <= FILL_OVER_SAVING * saved:
         return res
     log.info("fill: %.1f m of fill passes against %.1f m saved by the wider paths: planning again with the "
              "pattern spaced for the scallop and no fill", fill["feed_mm"] / 1000, saved / 1000)
@@ -602,8 +615,32 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
     for k_, v in res.report["timings_s"].items():
         t[k_] = t.get(k_, 0.0) + v
     report = {**again.report, "timings_s": t,
-              "fill": {**fill, "dropped": True, "pattern_feed_mm": pattern_feed, "saved_mm": saved}}
+              "fill": {**fill, "dropped": True, "pattern_feed_mm": pattern_feed, "saved_mm": saved,
+                       "widening_ratio": ratio}}
     return replace(again, report=report)
+
+
+def widening_ratio(domain: DomainPaths) -> float:
+    """How much longer the pattern would be spaced for the job's scallop h than as spaced.
+
+    The paths' ``DomainPath.widening`` (how much wider each path's step to the next is,
+    spaced for ``Job.pattern_scallop`` F times h, than a step spaced for h), averaged over
+    every path but the last with the weight of its samples (about one dense spacing apart
+    in 3D: its length). About ``sqrt(F)`` where the curvature sets the
+    steps, 1 where the flat cap sets both; 1.0 for paths spaced for h.
+
+    Parameters
+    ----------
+    domain : DomainPaths
+
+    Returns
+    -------
+    float
+    """
+    w = np.array([len(p.uv) for p in domain.paths[:-1]], dtype=np.float64)
+    if not w.sum():
+        return 1.0
+    return float(np.dot(w, [p.widening for p in domain.paths[:-1]]) / w.sum())
 
 
 def _plan_once(mesh: Mesh, job: Job, progress=None) -> PlanResult:
@@ -732,7 +769,7 @@ def _plan_once(mesh: Mesh, job: Job, progress=None) -> PlanResult:
         pparams = params if job.pattern_scallop == 1.0 else replace(params, scallop=job.pattern_scallop * h)
         check_meetable(pparams)
         planner = Planner(surface, pparams, seg_len, concave_cap=flat_ls if job.concave_steps == "flat" else None,
-                          rise_tol=e_fwd, max_step=job.max_step)
+                          rise_tol=e_fwd, max_step=job.max_step, base_scallop=h)
 
         say("frame", 1.0)
         # the pattern stage is serial: its kernels on this thread alone while the workers

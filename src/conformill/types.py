@@ -193,13 +193,20 @@ class DomainPath:
         The family parameter of the path (u for zigzag, rho for contour rings; for a
         spiral revolution, the inner ring's rho).
     side_allowed : (k,) float64
-        Allowed side interval l_s (mm) at each sample, from the scallop height and the
-        curvature across the path.
+        Allowed side interval l_s (mm) at each sample, from the scallop height the paths
+        are spaced for and the curvature across the path.
     side_realised : (k,) float64
         3D distance (mm) from each sample to the next path (NaN on the last path).
     side_predicted : (k,) float64
         The side interval the metric predicts for the domain step actually taken,
         ``|r_a| sin(phi) * ds`` (METHOD section 6's ``l_s'``); NaN on the last path.
+    widening : float
+        Where the paths are spaced for more than the job's scallop h
+        (``Job.pattern_scallop``): how much wider the step to the next path is than a
+        step spaced for h would be. The largest factor by which the step taken could be
+        scaled and keep ``side_predicted`` within the interval allowed as spaced at every
+        sample, over the same within the interval allowed at h. 1.0 otherwise and on the
+        last path.
     """
 
     uv: np.ndarray
@@ -208,6 +215,7 @@ class DomainPath:
     side_allowed: np.ndarray
     side_realised: np.ndarray
     side_predicted: np.ndarray
+    widening: float = 1.0
 
 
 @dataclass(frozen=True, eq=False)

@@ -374,9 +374,12 @@ def _header(args, job, result) -> dict:
         header["fill"] = (f"where the passes leave above {job.fill:g} H"
                           + (f", the pattern's paths spaced for {job.pattern_scallop:g} H"
                              if job.pattern_scallop != 1.0 else ""))
-        if (result.report.get("fill") or {}).get("dropped"):  # the wider paths did not pay: planned again
+        fill = result.report.get("fill") or {}
+        if fill.get("dropped"):  # the wider paths did not pay: planned again
+            cost = (f"{fill['feed_mm'] / fill['saved_mm']:.1f} times what the spacing saved" if fill["saved_mm"] > 0
+                    else "longer than the spacing saved")
             header["fill"] = (f"none: the fill above {job.fill:g} H of paths spaced for {job.pattern_scallop:g} H was "
-                              f"longer than the spacing saved; paths spaced for H")
+                              f"{cost}; paths spaced for H")
     elif job.pattern_scallop != 1.0:
         header["pattern scallop"] = f"{job.pattern_scallop:g} H"
     if job.hop_lift > 0:  # likewise

@@ -525,9 +525,9 @@ def _levels_at(s, tau):
 class Curve:
     """One evaluated domain curve: dense samples and the surface there."""
 
-    __slots__ = ("s", "tau", "sample", "t", "ls", "reach", "rate", "tree", "levels")
+    __slots__ = ("s", "tau", "sample", "t", "ls", "reach", "rate", "tree", "levels", "ls_base")
 
-    def __init__(self, s, tau, sample, t, ls, reach, rate=None, levels=None):
+    def __init__(self, s, tau, sample, t, ls, reach, rate=None, levels=None, ls_base=None):
         self.s = s
         # the level of each sample: ``s`` everywhere for a level set, less in a dent
         # (:meth:`Planner.run_local`)
@@ -541,6 +541,10 @@ class Curve:
         # domain direction (1 for the paper's iso-lines; see conformill.patterns.warp)
         self.rate = np.ones(len(tau)) if rate is None else rate
         self.tree = None  # k-d tree of sample.xyz, built on first need (pair_distances)
+        # the allowed side interval at the job's own scallop where the paths are spaced
+        # wider (Planner's base_scallop); ``ls`` itself otherwise
+        self.ls_base = ls if ls_base is None else ls_base
+
 
 
 class Family:
@@ -579,17 +583,23 @@ class Planner:
     rise_tol, max_step : float
         Forward chord tolerance and longest forward step (mm): the chord rise over concave
         stretches is taken off the scallop height before the side step is computed.
+    base_scallop : float, optional
+        The job's scallop height (mm) when ``params.scallop`` spaces the paths wider
+        (``Job.pattern_scallop``): each curve then also holds the side interval allowed
+        at it (``Curve.ls_base``), with the same cap, which is what the wider spacing
+        saves against (:func:`conformill.pipeline.plan`'s test of the widening).
     """
 
     def __init__(self, surface, params, seg_len: float, concave_cap: float | None = None,
-                 rise_tol: float = 0.0, max_step: float = np.inf):
+                 rise_tol: float = 0.0, max_step: float = np.inf, base_scallop: float | None = None):
         self.surface = surface
         self.params = params
         self.seg_len = float(seg_len)
         self.concave_cap = concave_cap
         self.rise_tol = float(rise_tol)
         self.max_step = float(max_step)
-        self._flat = None  # the flat side interval with the stock and the cap (allowed)
+        self.base_scallop = None if base_scallop is None or base_scallop == params.scallop else float(base_scallop)
+        self._flat = {}  # the flat side interval with the stock and the cap, by scallop (allowed)
 
     # -- evaluation ---------------------------------------------------------------
     def evaluate(self, family: Family, s: float, max_rounds: int = 6, tau: np.ndarray | None = None) -> Curve:
@@ -620,17 +630,19 @@ class Planner:
                 tau_new, new = _refined_sorted(tau, S.xyz, self.seg_len)
             tau = tau_new
         ls, reach = self.allowed(S, t)
+        ls_base = None if self.base_scallop is None else self.allowed(S, t, self.base_scallop)[0]
         lv = _levels_at(s, tau)
         return Curve(s_low, tau, S, t, ls, reach, family.rate(lv, tau, P, t),
-                     levels=None if prof is None else lv)
+                     levels=None if prof is None else lv, ls_base=ls_base)
 
-    def allowed(self, S, t):
+    def allowed(self, S, t, scallop: float | None = None):
         """Allowed side interval ``l_s`` (mm) across domain tangents ``t`` at samples ``S``.
 
         Returns ``(ls, reach)``; ``reach`` is False where the ball cannot follow the
         concave curvature across the path. Samples facing down past :data:`UNDERCUT_NZ`
         get at least the flat interval: no ball touches them, so the scallop there is not
-        the program's (``verify`` leaves them out as unreachable).
+        the program's (``verify`` leaves them out as unreachable). ``scallop`` (mm), if
+        given, replaces ``params.scallop`` (the cap stays).
         """
         # (one compiled pass: planning.steps.allowed_across, the same arithmetic as
         # S.curvature(S.across(t)), the rise and side_interval_stock in numpy)
@@ -640,15 +652,15 @@ class Planner:
         # is planned for what is left of h. Zero on planes and on convex ground. With
         # stock, the ball rolls on the offset surface (the cap holds there).
         p = self.params
+        h = float(p.scallop if scallop is None else scallop)
         cap = np.inf if self.concave_cap is None else float(self.concave_cap)
-        if self._flat is None:
-            self._flat = float(side_interval_stock(p.scallop, p.tool_radius, np.zeros(1), p.stock,
-                                                   self.concave_cap)[0][0])
+        if h not in self._flat:
+            self._flat[h] = float(side_interval_stock(h, p.tool_radius, np.zeros(1), p.stock, self.concave_cap)[0][0])
         c = np.ascontiguousarray
         return allowed_across(c(S.I, dtype=np.float64), c(S.II, dtype=np.float64), c(S.n, dtype=np.float64),
-                              c(t, dtype=np.float64), float(p.scallop), float(p.tool_radius), float(p.stock), cap,
+                              c(t, dtype=np.float64), h, float(p.tool_radius), float(p.stock), cap,
                               self.rise_tol, self.max_step * self.max_step if self.rise_tol > 0 else 0.0,
-                              UNDERCUT_NZ, self._flat)
+                              UNDERCUT_NZ, self._flat[h])
 
     def domain_steps(self, c: Curve) -> np.ndarray:
         """Step in ``s`` allowed at each sample: ``l_s |r_t| / (sqrt(EG - F^2) rate)``."""

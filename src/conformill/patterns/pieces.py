@@ -57,6 +57,19 @@ class PieceStream:
         self._path(len(self._curves) - 1)
 
 
+def _widening(c, predicted) -> float:
+    """``DomainPath.widening`` of curve ``c`` with the side intervals ``predicted`` for the
+    step taken to the next curve: the largest factor that step could be scaled by and stay
+    within the interval allowed as spaced (``c.ls``) everywhere, over the same within the
+    one allowed at the job's scallop (``c.ls_base``). 1.0 where they are the same."""
+    if c.ls_base is c.ls:
+        return 1.0
+    ok = np.isfinite(predicted) & (predicted > 0) & (c.ls > 0) & (c.ls_base > 0)
+    if not ok.any():
+        return 1.0
+    return float(np.min(c.ls[ok] / predicted[ok]) / np.min(c.ls_base[ok] / predicted[ok]))
+
+
 def domain_paths(pattern: str, curves, realised, predicted, shrinks: int, closed: bool) -> DomainPaths:
     """Package planned curves with their side-interval figures for the report."""
     out = []
@@ -70,6 +83,7 @@ def domain_paths(pattern: str, curves, realised, predicted, shrinks: int, closed
                 side_allowed=c.ls,
                 side_realised=realised[i] if i < len(realised) else np.full(k, np.nan),
                 side_predicted=predicted[i] if i < len(predicted) else np.full(k, np.nan),
+                widening=_widening(c, predicted[i]) if i < len(predicted) else 1.0,
             )
         )
     return DomainPaths(pattern=pattern, paths=out, shrink_iterations=int(shrinks))

@@ -38,13 +38,14 @@ SCAN_RECIPE = {"pencil": True, "pencil_search": "folds", "pencil_left": 0.5, "ho
 #: ``Job.pattern_scallop`` with ``plan --scan``, by pattern. Session 53 chose 1.3 for all
 #: three on the zigzag (igea 1.033 h for 7 % less feed; 1.5 left igea and the shipped face at
 #: or above 1.05 h). The contour and spiral rings leave less where they are tight (igea
-#: 1.016 / 1.015 h at 1.3): session 54 spaced the contour for 1.5 h (igea 1.026 h, 5 % less
-#: feed, its plan 9 % quicker) and the spiral for 1.7 h (igea 1.020-1.024 h, 10 % less feed,
-#: 13 % quicker), every other scan within 1.05 h as at 1.3. The contour at 1.7 left igea
-#: 1.034-1.038 h and made the shipped patch 13 % longer: there the side step is at the flat
-#: cap already, the wider spacing saves little, and the widening test (:func:`plan`) kept a
-#: fill it should have dropped (docs/issue5.md, "Session 54").
-SCAN_PATTERN_SCALLOP = {"zigzag": 1.3, "contour": 1.5, "spiral": 1.7}
+#: 1.016 / 1.015 h at 1.3): the spiral is spaced for 1.7 h (igea 1.020-1.026 h on four
+#: sample sets, 10 % less feed than at 1.3) and, since session 55, the contour too (igea
+#: 1.027-1.038 h on four sample sets, 8 % less feed than at 1.3), every other scan within
+#: 1.05 h as at 1.3. Session 54 had held the contour at 1.5 because the widening test then
+#: assumed a saving of sqrt(F) - 1 and kept the fill on the shipped patch, where the flat
+#: cap sets the step at every F; :func:`widening_ratio` reads the saving from the paths
+#: (docs/issue5.md, "Session 54" and "Session 55").
+SCAN_PATTERN_SCALLOP = {"zigzag": 1.3, "contour": 1.7, "spiral": 1.7}
 
 
 #: :func:`plan` keeps the fill while its feed is at most this times what the wider paths

@@ -77,11 +77,11 @@ def add_arguments(p) -> None:
                         "no ball reaches within 0.5 H is left to the pencil (default: no fill; 0.7 with --scan, "
                         "where off leaves it out and spaces the pattern for H)")
     p.add_argument("--pattern-scallop", type=float, default=None, metavar="F",
-                   help="space the pattern's paths for F H (default 1; with --scan 1.3 for zigzag, 1.5 for contour, "
-                        "1.7 for spiral); above 1 it needs --fill, which cuts what the wider paths leave above T H")
+                   help="space the pattern's paths for F H (default 1; with --scan 1.3 for zigzag, 1.7 for contour "
+                        "and spiral); above 1 it needs --fill, which cuts what the wider paths leave above T H")
     p.add_argument("--scan", action="store_true",
                    help="settings for a scanned part: --pencil --pencil-search folds --pencil-left 0.5 "
-                        "--hop-lifted 3 --pattern-scallop 1.3 (1.5 contour, 1.7 spiral) --fill 0.7, each unless "
+                        "--hop-lifted 3 --pattern-scallop 1.3 (1.7 contour, 1.7 spiral) --fill 0.7, each unless "
                         "given (with --pencil-search samples, no --pencil-left). R4, H 0.01: 27 of 33 benchmark "
                         "programs within 1.05 H (25 without the fill and the wider paths), up to 17 %% shorter on "
                         "the scans (sessions 53-54)")

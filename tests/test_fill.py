@@ -114,7 +114,7 @@ def test_a_plan_with_wider_paths_and_the_fill_stays_within_the_scallop():
     # samples left above it (one plan, without the test of the widening: on a part this
     # smooth plan() drops the fill, below)
     from conformill.mesh.synthetic import sphere_cap
-    from conformill.pipeline import _plan_once, plan, widening_ratio
+    from conformill.pipeline import FILL_OVER_SAVING, _plan_once, plan, widening_ratio
 
     m = sphere_cap(R=60.0, radius_xy=12.0, spacing=0.6)
     h = 0.02
@@ -139,10 +139,11 @@ def test_a_plan_with_wider_paths_and_the_fill_stays_within_the_scallop():
     fill_feed = filled.report["fill"]["feed_mm"]
     pattern = [q for q, i in zip(filled.toolpath.passes, filled.toolpath.pass_ids) if i >= 0]
     ratio = widening_ratio(filled.domain_paths)
-    assert fill_feed > (ratio - 1) * feed(pattern)
+    assert fill_feed > FILL_OVER_SAVING * (ratio - 1) * feed(pattern)
     dropped = plan(m, job)
     assert dropped.report["fill"]["dropped"] and dropped.report["fill"]["feed_mm"] == fill_feed
     assert dropped.report["fill"]["widening_ratio"] == ratio
+    assert dropped.report["fill"]["saved_mm"] == pytest.approx((ratio - 1) * feed(pattern), rel=1e-12)
     assert all(p.widening == 1.0 for p in dropped.domain_paths.paths)
     assert dropped.report["job"]["pattern_scallop"] == 1.0 and dropped.report["job"]["fill"] is None
     assert len(dropped.toolpath.passes) == len(base.toolpath.passes)
@@ -175,6 +176,30 @@ def test_the_widening_is_read_from_the_side_intervals_on_a_sphere(sphere_r, capp
     assert res.domain_paths.paths[-1].widening == 1.0
     np.testing.assert_allclose(inner, expected, rtol=5e-3)  # (the rim rows: fitted curvature)
     assert widening_ratio(res.domain_paths) == pytest.approx(expected, rel=2e-3)
+
+
+def test_a_paths_widening_is_that_of_its_tightest_sample():
+    # pieces._widening: the largest factor the step taken could be scaled by within the
+    # interval allowed as spaced, over the same within the interval allowed at h; samples
+    # with no finite positive predicted interval (the last path's NaN) are left out
+    from types import SimpleNamespace
+
+    from conformill.patterns.pieces import _widening
+
+    def curve(ls, base):
+        return SimpleNamespace(ls=np.array(ls, dtype=float), ls_base=np.array(base, dtype=float))
+
+    # sample 0 binds (ls / predicted = 1.2 against 2.0): its own ratio, 1.2
+    assert _widening(curve([1.2, 1.0, 2.0, 1.0], [1.0, 1.0, 1.0, 0.5]), np.array([1.0, 0.5, np.nan, 0.0])) == 1.2
+    # the tight sample 0 is capped (no wider) while sample 1 widens 1.3 times: 1.0, not
+    # the samples' mean (1.15)
+    assert _widening(curve([1.0, 1.3], [1.0, 1.0]), np.array([1.0, 0.5])) == 1.0
+    # at h the tight sample moves: 2.0 / 1.0 over min(1.0 / 1.0, 1.5 / 1.0)
+    assert _widening(curve([2.0, 2.0], [1.0, 1.5]), np.array([1.0, 1.0])) == 2.0
+    assert _widening(curve([1.0], [0.8]), np.array([np.nan])) == 1.0  # nothing to read
+    same = curve([1.0, 2.0], [1.0, 2.0])
+    same.ls_base = same.ls
+    assert _widening(same, np.array([1.0, 1.0])) == 1.0  # not widened
 
 
 def test_on_a_plane_the_flat_cap_leaves_nothing_to_save():
@@ -210,7 +235,9 @@ def test_a_fill_shorter_than_the_saving_is_kept(monkeypatch):
 @pytest.mark.parametrize("share, dropped", [(1.0, False), (1.2, False), (1.3, True)])
 def test_the_fill_is_kept_up_to_its_share_of_the_saving(monkeypatch, share, dropped):
     # the fill's feed reported as `share` times what the wider paths saved: kept up to
-    # FILL_OVER_SAVING (1.25) times, dropped above (the plan spaced for h, no fill)
+    # FILL_OVER_SAVING (1.25) times, dropped above (the plan spaced for h, no fill). On
+    # this cap the flat cap holds the wider step (widening about 1.033, not sqrt(1.3)):
+    # a test that took sqrt(F) - 1 for the saving would keep the fill at 1.3
     import conformill.pipeline as pl
     from conformill.mesh.synthetic import sphere_cap
 
@@ -226,7 +253,7 @@ def test_the_fill_is_kept_up_to_its_share_of_the_saving(monkeypatch, share, drop
         return res
 
     monkeypatch.setattr(pl, "_plan_once", fill_of)
-    m = sphere_cap(R=8.0, radius_xy=5.6, spacing=0.4)
+    m = sphere_cap(R=60.0, radius_xy=12.0, spacing=0.6)
     res = pl.plan(m, Job(pattern="zigzag", tool_radius=R, scallop=0.02, tolerance=E, pattern_scallop=1.3, fill=0.7))
     assert bool(res.report["fill"].get("dropped")) == dropped
     assert res.report["job"]["pattern_scallop"] == (1.0 if dropped else 1.3)

@@ -85,6 +85,26 @@ def test_allowed_is_the_numpy_arithmetic_bit_for_bit(stock, cap, rise_tol, max_s
         assert np.any(ls == cap)  # the cap binds somewhere
 
 
+@pytest.mark.parametrize("stock", [0.0, 0.4])
+@pytest.mark.parametrize("cap", [None, 0.3])
+def test_allowed_at_another_scallop_is_a_planner_built_for_it(stock, cap):
+    # Planner.allowed(S, t, scallop=h) on a planner spaced for 1.7 h (the widening test's
+    # Curve.ls_base) gives the bits of a planner built for h, with the same cap, and its
+    # own scallop again afterwards (the flat interval is cached per scallop)
+    wide = PathParams(tool_radius=4.0, scallop=0.017, tolerance=0.01, stock=stock)
+    base = PathParams(tool_radius=4.0, scallop=0.01, tolerance=0.01, stock=stock)
+    kw = dict(seg_len=0.2, concave_cap=cap, rise_tol=0.0025, max_step=2.0)
+    planner = Planner(None, wide, base_scallop=0.01, **kw)
+    S, t = _random_sample(3000, seed=11)
+    own = planner.allowed(S, t)[0]
+    at_h = planner.allowed(S, t, 0.01)[0]
+    np.testing.assert_array_equal(at_h, Planner(None, base, **kw).allowed(S, t)[0])
+    np.testing.assert_array_equal(planner.allowed(S, t)[0], own)
+    ok = np.isfinite(own)
+    assert np.all(own[ok] >= at_h[ok]) and np.any(own[ok] > at_h[ok])
+    assert Planner(None, base, base_scallop=0.01, **kw).base_scallop is None  # the same scallop: no second pass
+
+
 def test_allowed_follows_a_patched_undercut_limit(monkeypatch):
     """The limit is read when the planner is asked (a test patches it)."""
     params = PathParams(tool_radius=4.0, scallop=0.01, tolerance=0.01)

@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+import json
 import re
 
 import pytest
 
 from conformill.cli.main import main
 from conformill.errors import JobValueError
-from conformill.pipeline import SCAN_PATTERN_SCALLOP, SCAN_RECIPE, scan_recipe
+from conformill.pipeline import FILL_OVER_SAVING, SCAN_PATTERN_SCALLOP, SCAN_RECIPE, scan_recipe
 
 COMMON = ["plan", "sample:patch", "--tool-radius", "4", "--scallop", "0.1", "-q", "--pattern", "contour"]
 
@@ -37,7 +38,8 @@ def test_the_recipe_by_pattern():
 
 def test_scan_writes_the_same_bytes_as_its_six_options(tmp_path):
     a, b = tmp_path / "scan.nc", tmp_path / "explicit.nc"
-    assert main(COMMON + ["--scan", "-o", str(a)]) == 0
+    report = tmp_path / "scan.json"
+    assert main(COMMON + ["--scan", "-o", str(a), "--report", str(report)]) == 0
     assert main(COMMON + ["--pencil", "--pencil-search", "folds", "--pencil-left", "0.5", "--hop-lifted", "3",
                           "--pattern-scallop", f"{SCAN_PATTERN_SCALLOP['contour']:g}", "--fill", "0.7", "-o",
                           str(b)]) == 0
@@ -50,7 +52,9 @@ def test_scan_writes_the_same_bytes_as_its_six_options(tmp_path):
     said = [ln for ln in head if ln.startswith("(param fill: none: the fill above 0.7 H of paths spaced for "
             f"{SCAN_PATTERN_SCALLOP['contour']:g} H was ")]
     assert len(said) == 1 and said[0].endswith(" times what the spacing saved; paths spaced for H)")
-    assert float(said[0].split(" was ")[1].split()[0]) > 1.25
+    fill = json.loads(report.read_text())["fill"]
+    times = said[0].split(" was ")[1].split()[0]
+    assert times == f"{fill['feed_mm'] / fill['saved_mm']:.1f}" and float(times) > FILL_OVER_SAVING
 
 
 def test_given_options_win_over_the_recipe(tmp_path):

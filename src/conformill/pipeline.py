@@ -564,7 +564,7 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
     fill, when the fill's feed is more than :data:`FILL_OVER_SAVING` times what the wider
     paths saved, the part is planned again with the pattern spaced for h and no fill. The
     saving is read from the pattern's own paths (:func:`widening_ratio`): how much wider
-    each path's step is than a step spaced for h, about ``sqrt(F)`` where the curvature
+    each path's step is than a step spaced for h, near ``sqrt(F)`` where the curvature
     sets the step and 1 where the flat cap (``Job.concave_steps``) holds it at both. The
     fill is dropped on a smooth part, where the wider rows leave more than the fill's depth
     along most of each gap and the fill would cut it all, and where the cap leaves little
@@ -627,19 +627,27 @@ def widening_ratio(domain: DomainPaths) -> float:
     The paths' ``DomainPath.widening`` (how much wider each path's step to the next is,
     spaced for ``Job.pattern_scallop`` F times h, than a step spaced for h), averaged over
     every path but the last with the weight of its samples (about one dense spacing apart
-    in 3D: its length). About ``sqrt(F)`` where the curvature sets the steps, 1 where the
-    flat cap sets both; 1.0 for paths spaced for h. Session 55 checked it against plans
-    spaced for h on 11 meshes, three patterns and F = 1.3, 1.5 and 1.7: it put the
-    pattern's feed at h within 5 % of the plan's on every mesh but camelhead (2.8-10.2 %
-    short there, where it finds 27-69 % of the saving).
+    in 3D: its length). Near ``sqrt(F)`` where the curvature sets the steps, 1 where the
+    flat cap sets both; 1.0 for paths spaced for h.
+
+    It is an estimate: a path's widening is that of its tightest sample (relative to the
+    step taken), so where the adaptive or local spacing follows the allowed interval along
+    a path that crosses capped and curved ground, one curved sample can give the whole
+    path its ratio. Session 55 checked it against plans spaced for h on 11 meshes, three
+    patterns and F = 1.3, 1.5 and 1.7: it put the pattern's feed at h within 5 % of the
+    plan's on every mesh but camelhead (2.8-10.2 % short there, where it finds 27-69 % of
+    the saving).
 
     Parameters
     ----------
     domain : DomainPaths
+        A plan's paths (``PlanResult.domain_paths``).
 
     Returns
     -------
     float
+        The pattern's feed spaced for h over its feed as spaced, estimated (1.0 or more
+        for ``Job.pattern_scallop`` above 1).
     """
     w = np.array([len(p.uv) for p in domain.paths[:-1]], dtype=np.float64)
     if not w.sum():
@@ -773,7 +781,8 @@ def _plan_once(mesh: Mesh, job: Job, progress=None) -> PlanResult:
         pparams = params if job.pattern_scallop == 1.0 else replace(params, scallop=job.pattern_scallop * h)
         check_meetable(pparams)
         planner = Planner(surface, pparams, seg_len, concave_cap=flat_ls if job.concave_steps == "flat" else None,
-                          rise_tol=e_fwd, max_step=job.max_step, base_scallop=h)
+                          rise_tol=e_fwd, max_step=job.max_step,
+                          base_scallop=h if job.pattern_scallop > 1.0 else None)
 
         say("frame", 1.0)
         # the pattern stage is serial: its kernels on this thread alone while the workers

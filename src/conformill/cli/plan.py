@@ -84,7 +84,7 @@ def add_arguments(p) -> None:
                         "--hop-lifted 3 --pattern-scallop 1.3 (1.7 contour, 1.7 spiral) --fill 0.7, each unless "
                         "given (with --pencil-search samples, no --pencil-left). R4, H 0.01: 27 of 33 benchmark "
                         "programs within 1.05 H (25 without the fill and the wider paths), up to 17 %% shorter on "
-                        "the scans (sessions 53-54)")
+                        "the scans (sessions 53-55)")
     p.add_argument("--hop-lifted", type=float, default=None, metavar="L",
                    help="hop over runs of the path where the drop-cutter lifts the ball more than L mm above "
                         "its planned contact (undercuts, pockets tighter than the ball) where the hop is quicker "

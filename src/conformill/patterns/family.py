@@ -546,7 +546,6 @@ class Curve:
         self.ls_base = ls if ls_base is None else ls_base
 
 
-
 class Family:
     """Base class of an offset family; subclasses define the domain geometry.
 
@@ -585,9 +584,11 @@ class Planner:
         stretches is taken off the scallop height before the side step is computed.
     base_scallop : float, optional
         The job's scallop height (mm) when ``params.scallop`` spaces the paths wider
-        (``Job.pattern_scallop``): each curve then also holds the side interval allowed
-        at it (``Curve.ls_base``), with the same cap, which is what the wider spacing
-        saves against (:func:`conformill.pipeline.plan`'s test of the widening).
+        (``Job.pattern_scallop`` above 1; :func:`conformill.pipeline.plan` passes it only
+        then): each curve then also holds the side interval allowed at it
+        (``Curve.ls_base``), with the same cap, which is what the wider spacing saves
+        against (:func:`conformill.pipeline.plan`'s test of the widening). Ignored when it
+        equals ``params.scallop``.
     """
 
     def __init__(self, surface, params, seg_len: float, concave_cap: float | None = None,

@@ -257,6 +257,11 @@ def test_the_fill_is_kept_up_to_its_share_of_the_saving(monkeypatch, share, drop
     res = pl.plan(m, Job(pattern="zigzag", tool_radius=R, scallop=0.02, tolerance=E, pattern_scallop=1.3, fill=0.7))
     assert bool(res.report["fill"].get("dropped")) == dropped
     assert res.report["job"]["pattern_scallop"] == (1.0 if dropped else 1.3)
+    # kept or dropped, the report holds the test's figures
+    fill = res.report["fill"]
+    assert fill["pattern_scallop"] == 1.3 and fill["widening_ratio"] > 1.0
+    assert fill["saved_mm"] == pytest.approx((fill["widening_ratio"] - 1.0) * fill["pattern_feed_mm"], rel=1e-12)
+    assert fill["feed_mm"] == pytest.approx(share * fill["saved_mm"], rel=1e-12)
 
 
 def test_the_hops_into_later_passes_clear_the_part(flat):

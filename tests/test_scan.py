@@ -57,6 +57,26 @@ def test_scan_writes_the_same_bytes_as_its_six_options(tmp_path):
     assert times == f"{fill['feed_mm'] / fill['saved_mm']:.1f}" and float(times) > FILL_OVER_SAVING
 
 
+def test_the_summary_says_what_the_fill_did(tmp_path, capsys):
+    # dropped (the shipped patch with --scan): the fill's feed against the saving, and the
+    # plan again for H; kept without wider paths: its passes, and no saving
+    assert main(COMMON[:-3] + ["--pattern", "contour", "--scan", "-o", str(tmp_path / "a.nc"),
+                               "--report", str(tmp_path / "a.json")]) == 0
+    line = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("  fill ")]
+    fill = json.loads((tmp_path / "a.json").read_text())["fill"]
+    assert line == [f"  fill              none: {fill['feed_mm'] / 1000:.2f} m of fill against about "
+                    f"{fill['saved_mm'] / 1000:.2f} m saved by the paths spaced for "
+                    f"{SCAN_PATTERN_SCALLOP['contour']:g} H ({fill['feed_mm'] / fill['saved_mm']:.1f} times); "
+                    f"planned again with the paths spaced for H"]
+    assert main(COMMON[:-3] + ["--pattern", "contour", "--fill", "0.7", "-o", str(tmp_path / "b.nc"),
+                               "--report", str(tmp_path / "b.json")]) == 0
+    line = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("  fill ")]
+    fill = json.loads((tmp_path / "b.json").read_text())["fill"]
+    assert "saved_mm" not in fill and fill["passes"] > 0
+    assert line == [f"  fill              {fill['passes']} pass(es), {fill['cl_points']} CL points, "
+                    f"{fill['feed_mm'] / 1000:.2f} m through {fill['balls']} balls where the passes left above 0.7 H"]
+
+
 def test_given_options_win_over_the_recipe(tmp_path):
     out = tmp_path / "p.nc"
     assert main(COMMON + ["--scan", "--pencil-left", "0.8", "--hop-lifted", "0", "--pencil-density", "20",

@@ -569,8 +569,9 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
     fill is dropped on a smooth part, where the wider rows leave more than the fill's depth
     along most of each gap and the fill would cut it all, and where the cap leaves little
     to save. The report's ``fill`` then holds the first plan's figures with ``"dropped":
-    True`` (and the saving: ``saved_mm``, ``widening_ratio``), and its ``timings_s`` the
-    two plans' sum.
+    True``, and its ``timings_s`` the two plans' sum. Either way the report's ``fill``
+    holds the test's figures: ``pattern_scallop`` (F), ``pattern_feed_mm``, ``saved_mm``
+    and ``widening_ratio``.
 
     Parameters
     ----------
@@ -607,8 +608,10 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
     pattern_feed = float(sum(np.linalg.norm(np.diff(q, axis=0), axis=1).sum() for q in pattern))
     ratio = widening_ratio(res.domain_paths)
     saved = (ratio - 1.0) * pattern_feed
+    widening = {"pattern_scallop": job.pattern_scallop, "pattern_feed_mm": pattern_feed, "saved_mm": saved,
+                "widening_ratio": ratio}
     if fill["feed_mm"] <= FILL_OVER_SAVING * saved:
-        return res
+        return replace(res, report={**res.report, "fill": {**fill, **widening}})
     log.info("fill: %.1f m of fill passes against %.1f m saved by the wider paths: planning again with the "
              "pattern spaced for the scallop and no fill", fill["feed_mm"] / 1000, saved / 1000)
     again = _plan_once(mesh, replace(job, fill=None, pattern_scallop=1.0), progress)
@@ -616,8 +619,7 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
     for k_, v in res.report["timings_s"].items():
         t[k_] = t.get(k_, 0.0) + v
     report = {**again.report, "timings_s": t,
-              "fill": {**fill, "dropped": True, "pattern_feed_mm": pattern_feed, "saved_mm": saved,
-                       "widening_ratio": ratio}}
+              "fill": {**fill, **widening, "dropped": True}}
     return replace(again, report=report)
 
 

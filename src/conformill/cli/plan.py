@@ -511,6 +511,20 @@ def _spindle_text(rpm) -> str:
     return f"M3 S{rpm:g}: started before the first move"
 
 
+def _fill_text(fill: dict) -> str:
+    """The summary's account of the fill stage (the report's ``fill``): its passes, or why
+    it was dropped, and what the wider paths saved (:func:`conformill.pipeline.plan`)."""
+    saved = fill.get("saved_mm")
+    wider = (f"about {saved / 1000:.2f} m saved by the paths spaced for {fill['pattern_scallop']:g} H"
+             if saved is not None else "")
+    if fill.get("dropped"):
+        times = f" ({fill['feed_mm'] / saved:.1f} times)" if saved > 0 else ""
+        return (f"none: {fill['feed_mm'] / 1000:.2f} m of fill against {wider}{times}; planned again with the "
+                f"paths spaced for H")
+    return (f"{fill['passes']} pass(es), {fill['cl_points']} CL points, {fill['feed_mm'] / 1000:.2f} m through "
+            f"{fill['balls']} balls where the passes left above {fill['depth_h']:g} H" + (f"; {wider}" if wider else ""))
+
+
 def _summary(rep: dict, out: str) -> None:
     pr, pa, q = rep["program"], rep["paths"], rep["parameterization"]["quality"]
     lines = [
@@ -527,6 +541,7 @@ def _summary(rep: dict, out: str) -> None:
         + ("" if rep["job"].get("spindle") is not None else "; spindle not started by the program (--spindle RPM)"),
         *([f"  pencil            {rep['pencil']['passes']} pass(es), {rep['pencil']['cl_points']} CL points, "
            f"{rep['pencil']['feed_mm'] / 1000:.2f} m from {_pencil_source(rep['pencil'])}"] if rep.get("pencil") else []),
+        *([f"  fill              {_fill_text(rep['fill'])}"] if rep.get("fill") else []),
         f"  reachability      undercut {100 * rep['reachability']['undercut_share']:.2f}%, concave below R "
         f"{100 * rep['reachability']['concave_below_tool_radius_share']:.2f}%",
     ]

@@ -172,10 +172,10 @@ class Job:
     pattern_scallop : float
         The pattern's paths are spaced for this many ``h`` (default 1); above 1 only with
         ``fill``, which brings what the wider paths leave back under ``h``. ``plan --scan``
-        spaces them for 1.3 / 1.5 / 1.7 h (zigzag / contour / spiral; :data:`SCAN_PATTERN_SCALLOP`)
-        and fills above 0.7 h (session 53: 27 of the 33 benchmark programs within 1.05 h where
-        25 were, up to 11 % shorter on the scans; docs/issue5.md, "Session 53" and
-        "Session 54").
+        spaces them for 1.3 / 1.7 / 1.7 h (zigzag / contour / spiral;
+        :data:`SCAN_PATTERN_SCALLOP`) and fills above 0.7 h (sessions 53-55: 27 of the 33
+        benchmark programs within 1.05 h where 25 were, up to 17 % shorter on the scans;
+        docs/issue5.md, "Session 53" to "Session 55").
     blend : float, "off" or None
         The path control the program asks of the controller
         (:func:`conformill.output.gcode.path_control`): stay within this many mm of the

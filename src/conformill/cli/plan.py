@@ -376,8 +376,8 @@ def _header(args, job, result) -> dict:
                              if job.pattern_scallop != 1.0 else ""))
         fill = result.report.get("fill") or {}
         if fill.get("dropped"):  # the wider paths did not pay: planned again
-            cost = (f"{fill['feed_mm'] / fill['saved_mm']:.1f} times what the spacing saved" if fill["saved_mm"] > 0
-                    else "longer than the spacing saved")
+            times = _fill_times(fill)
+            cost = f"{times} times what the spacing saved" if times else "longer than the spacing saved"
             header["fill"] = (f"none: the fill above {job.fill:g} H of paths spaced for {job.pattern_scallop:g} H was "
                               f"{cost}; paths spaced for H")
     elif job.pattern_scallop != 1.0:
@@ -511,6 +511,13 @@ def _spindle_text(rpm) -> str:
     return f"M3 S{rpm:g}: started before the first move"
 
 
+def _fill_times(fill: dict) -> str | None:
+    """The fill's feed over what the wider paths saved (the report's ``fill``), as the
+    header and the summary print it; ``None`` when they saved nothing."""
+    saved = fill.get("saved_mm")
+    return f"{fill['feed_mm'] / saved:.1f}" if saved is not None and saved > 0 else None
+
+
 def _fill_text(fill: dict) -> str:
     """The summary's account of the fill stage (the report's ``fill``): its passes, or why
     it was dropped, and what the wider paths saved (:func:`conformill.pipeline.plan`)."""
@@ -518,11 +525,13 @@ def _fill_text(fill: dict) -> str:
     wider = (f"about {saved / 1000:.2f} m saved by the paths spaced for {fill['pattern_scallop']:g} H"
              if saved is not None else "")
     if fill.get("dropped"):
-        times = f" ({fill['feed_mm'] / saved:.1f} times)" if saved > 0 else ""
+        times = _fill_times(fill)
+        times = f" ({times} times)" if times else ""
         return (f"none: {fill['feed_mm'] / 1000:.2f} m of fill against {wider}{times}; planned again with the "
                 f"paths spaced for H")
     return (f"{fill['passes']} pass(es), {fill['cl_points']} CL points, {fill['feed_mm'] / 1000:.2f} m through "
-            f"{fill['balls']} balls where the passes left above {fill['depth_h']:g} H" + (f"; {wider}" if wider else ""))
+            f"{fill['balls']} balls where the passes left above {fill['depth_h']:g} H"
+            + (f"; {wider}" if wider else ""))
 
 
 def _summary(rep: dict, out: str) -> None:

@@ -291,3 +291,34 @@ def test_a_huge_part_gets_a_lower_density_with_a_warning(flat, monkeypatch, capl
         out = fill_passes(cut, m.V, m.F, rows, H, depth=0.7, tol=E, link_max=8.0, start_xy=(0.0, 0.0))
     assert out.stats["samples"] <= 2000 and out.stats["density_per_mm2"] < 30.0
     assert "per mm^2" in caplog.text
+
+
+def test_the_samples_drawn_in_the_pencils_worker_are_the_fills_own():
+    # on two threads the pipeline draws the fill's samples in the pencil's worker and hands
+    # them over; on one thread fill_passes draws them itself (FILL_DENSITY, FILL_SEED): the
+    # same samples, so the same fill and the same program
+    import numba
+
+    from conformill.mesh.synthetic import sphere_cap
+    from conformill.passes import threads_can_overlap
+    from conformill.pipeline import _plan_once
+
+    m = sphere_cap(R=60.0, radius_xy=12.0, spacing=0.6)
+    job = Job(pattern="zigzag", tool_radius=R, scallop=0.02, tolerance=E, pattern_scallop=1.3, fill=0.7,
+              pencil=True, pencil_search="folds", pencil_left=0.5)
+    n = numba.get_num_threads()
+    if n < 2:
+        pytest.skip("one numba thread: the worker never runs")
+    out = []
+    try:
+        for t in (n, 1):
+            numba.set_num_threads(t)
+            assert threads_can_overlap() == (t > 1)
+            out.append(_plan_once(m, job))
+    finally:
+        numba.set_num_threads(n)
+    a, b = (o.report["fill"] for o in out)
+    assert a["samples"] > 1000 and a["balls"] > 0 and a == b
+    assert len(out[0].toolpath.passes) == len(out[1].toolpath.passes)
+    for p, q in zip(out[0].toolpath.passes, out[1].toolpath.passes):
+        np.testing.assert_array_equal(p, q)

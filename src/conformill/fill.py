@@ -40,12 +40,17 @@ from numba import njit, prange
 
 from conformill.errors import PlanningError
 
-__all__ = ["FILL_GIVE", "FillResult", "fill_passes", "fill_samples"]
+__all__ = ["FILL_DENSITY", "FILL_GIVE", "FILL_SEED", "FillResult", "fill_passes", "fill_samples"]
 
 log = logging.getLogger(__name__)
 
 #: A sample's ball is kept when its sphere comes within this many h of the sample.
 FILL_GIVE = 0.5
+#: Surface samples per mm^2 and their seed: the defaults of :func:`fill_samples` and
+#: :func:`fill_passes`, one constant for both (the pipeline draws the samples in the
+#: pencil's worker and hands them to :func:`fill_passes`; they must be the same draw).
+FILL_DENSITY = 30.0
+FILL_SEED = 0
 #: Grid nodes per side around a sample's tangent ball among which its ball is chosen.
 _NODES = 4
 
@@ -130,7 +135,7 @@ def _grid_balls(cutter, P, N, density, grid=None):
 
 
 def fill_passes(cutter, V, F, passes, h: float, *, depth: float, tol: float, link_max: float, start_xy,
-                density: float = 30.0, settle_tol: float = 0.0, seed: int = 0, give: float = FILL_GIVE,
+                density: float = FILL_DENSITY, settle_tol: float = 0.0, seed: int = FILL_SEED, give: float = FILL_GIVE,
                 grid=None, samples=None, progress=None) -> FillResult:
     """Fill passes through the balls that reach the surface samples ``passes`` left more
     than ``depth * h`` (see the module's text).
@@ -207,7 +212,7 @@ def fill_passes(cutter, V, F, passes, h: float, *, depth: float, tol: float, lin
     return FillResult(passes=out.passes, stats=stats)
 
 
-def fill_samples(cutter, V, F, density: float = 30.0, seed: int = 0):
+def fill_samples(cutter, V, F, density: float = FILL_DENSITY, seed: int = FILL_SEED):
     """The fill's area-uniform surface samples facing the tool
     (:func:`conformill.pencil.surface_samples`): ``(P, N, density)``, the density lowered,
     with a warning, where the part would give more samples or grid points than the

@@ -731,9 +731,9 @@ def _plan_once(mesh: Mesh, job: Job, progress=None) -> PlanResult:
         # the pattern stage, on the cutter the worker builds (the same chains either way)
         then = None
         if job.fill is not None:  # the fill's samples, drawn by the worker once its search is done
-            from conformill.fill import fill_samples
+            from conformill.fill import FILL_DENSITY, FILL_SEED, fill_samples
 
-            then = (lambda cutter: fill_samples(cutter, mesh.V, mesh.F))
+            then = (lambda cutter: fill_samples(cutter, mesh.V, mesh.F, FILL_DENSITY, FILL_SEED))
         background = BackgroundChains(builder.wait_cutter, *search_args, chain=not filtered, then=then,
                                       **search_kw, **chain_kw)
     with builder, (background or nullcontext()):  # stop the workers if a stage fails
@@ -891,14 +891,15 @@ def _plan_once(mesh: Mesh, job: Job, progress=None) -> PlanResult:
                 passes, pass_ids, hops = _after(cutter, passes, pass_ids, hops, pencil.passes, job.hop_lift > 0)
         fill = None
         if job.fill is not None:
-            from conformill.fill import fill_passes
+            from conformill.fill import FILL_DENSITY, FILL_SEED, fill_passes
 
             say("fill", 0.0)
             with timer("fill"):
                 start = passes[-1][-1, :2] if passes else mesh.V[:, :2].mean(axis=0)
                 samples = background.then_result() if background is not None else None
                 fill = fill_passes(cutter, mesh.V, mesh.F, passes, h, depth=job.fill, tol=e, link_max=link_max,
-                                   start_xy=start, settle_tol=job.settle * h, grid=fold_grid, samples=samples,
+                                   start_xy=start, density=FILL_DENSITY, seed=FILL_SEED, settle_tol=job.settle * h,
+                                   grid=fold_grid, samples=samples,
                                    progress=lambda f: say("fill", f))
                 passes, pass_ids, hops = _after(cutter, passes, pass_ids, hops, fill.passes, job.hop_lift > 0)
     if stock:  # the tips so far are those of the ball of radius r_cut: the ball of radius r is stock higher

@@ -468,46 +468,99 @@ def test_background_links_only_from_the_end_asked_for():
                 assert bg.linked(other, -1.0, 8.0) is None
 
 
+@pytest.mark.parametrize("search", pencil.SEARCHES)
 @pytest.mark.parametrize("chain", [False, True])
-def test_background_then_runs_after_the_worker_s_own_work(chain):
-    # then(cutter) runs in the worker after the search (chain=False) or after the links
-    # (chain=True), and then_result() hands over its value or its error; None when it
-    # never ran (stopped before the cutter was there)
+def test_background_draw_runs_before_the_search_which_uses_it(chain, search):
+    # draw(cutter) runs in the worker before the search, which takes its samples from it
+    # (the same centres as its own draw); drawn() hands over its value or its error (the
+    # search then draws its own); None when it never ran (stopped before the cutter)
     import threading
 
     m = syn.v_groove(a_deg=8.0, half=10.0, step=0.5)
     cut = BallCutter(m.V, m.F, R)
-    seen = []
+    seen, drawn = [], pencil.draw_samples(m.V, m.F, 30.0)
+    calls = []
+    real = pencil.surface_samples
 
-    def then(cutter):
-        seen.append((cutter, bg._searched.is_set(), threading.current_thread().name))
-        return 42
+    def counted(*a, **k):
+        calls.append(k.get("below_nz"))
+        return real(*a, **k)
 
+    def draw(cutter):
+        seen.append((cutter, "draw", threading.current_thread().name))
+        return drawn
+
+    def searched(fn):
+        def run(*a, **k):
+            seen.append("search")
+            return fn(*a, **k)
+        return run
+
+    kw = dict(chain=chain, search=search)
+    alone = pencil.BackgroundChains(lambda: cut, m.V, m.F, 0.1, **kw)
+    own = alone.result()
+    alone.cancel()
     start = np.array([-9.0, 3.0])
-    with pencil.BackgroundChains(lambda: cut, m.V, m.F, 0.1, chain=chain, then=then) as bg:
-        if chain:
-            bg.link_from(start, 0.01, 8.0)
-        assert bg.then_result() == 42
-        if chain:
-            assert bg.linked(start, 0.01, 8.0) is not None and bg.link_s > 0
-    assert seen == [(cut, True, "conformill-pencil")]
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(pencil, "surface_samples", counted)
+        for name in ("pencil_search", "pencil_chains"):
+            mp.setattr(pencil, name, searched(getattr(pencil, name)))
+        with pencil.BackgroundChains(lambda: cut, m.V, m.F, 0.1, draw=draw, **kw) as bg:
+            if chain:
+                bg.link_from(start, 0.01, 8.0)
+            assert bg.drawn() is drawn
+            got = bg.result()
+            if chain:
+                assert bg.linked(start, 0.01, 8.0) is not None
+    assert seen[:2] == [(cut, "draw", "conformill-pencil"), "search"]
+    assert calls == []  # every sample the search needed came from the draw
+    assert got.stats == own.stats
+    if chain:
+        for a, b in zip(got.chains, own.chains):
+            np.testing.assert_array_equal(a, b)
+    else:
+        np.testing.assert_array_equal(got.centres, own.centres)
 
     def fails(cutter):
-        raise PlanningError("then failed (test)")
+        raise PlanningError("draw failed (test)")
 
-    with pencil.BackgroundChains(lambda: cut, m.V, m.F, 0.1, chain=chain, then=fails) as bg:
-        with pytest.raises(PlanningError, match="then failed"):
-            bg.then_result()
-        bg.result()  # the search itself is unharmed
+    with pencil.BackgroundChains(lambda: cut, m.V, m.F, 0.1, draw=fails, **kw) as bg:
+        with pytest.raises(PlanningError, match="draw failed"):
+            bg.drawn()
+        assert bg.result().stats == own.stats  # the search itself is unharmed
     gate = threading.Event()
-    bg = pencil.BackgroundChains(lambda: (gate.wait(), cut)[1], m.V, m.F, 0.1, chain=chain, then=then)
+    bg = pencil.BackgroundChains(lambda: (gate.wait(), cut)[1], m.V, m.F, 0.1, draw=draw, **kw)
     bg._stop.set()
     gate.set()
-    assert bg.then_result() is None
+    assert bg.drawn() is None
     bg.cancel()
-    assert len(seen) == 1
-    with pencil.BackgroundChains(lambda: cut, m.V, m.F, 0.1, chain=chain) as bg:  # no then
-        assert bg.then_result() is None
+    assert sum(isinstance(x, tuple) for x in seen) == 1
+    with pencil.BackgroundChains(lambda: cut, m.V, m.F, 0.1, **kw) as bg:  # no draw
+        assert bg.drawn() is None
+
+
+def test_a_draw_of_another_density_or_seed_is_not_used():
+    m = syn.v_groove(a_deg=8.0, half=10.0, step=0.5)
+    cut = BallCutter(m.V, m.F, R)
+    for search in pencil.SEARCHES:
+        own = pencil.pencil_search(cut, m.V, m.F, 0.1, search=search)
+        for other in (pencil.draw_samples(m.V, m.F, 20.0), pencil.draw_samples(m.V, m.F, 30.0, seed=1)):
+            assert not other.matches(30.0, 0)
+            got = pencil.pencil_search(cut, m.V, m.F, 0.1, search=search, drawn=other)
+            assert got.stats == own.stats
+            np.testing.assert_array_equal(got.centres, own.centres)
+
+
+def test_the_steep_rows_of_a_draw_are_the_steep_draw():
+    # surface_samples(below_nz=b) draws the rows of the whole draw whose normal has n_z
+    # below b, in the same order: what SurfaceDraw.rows gives
+    m = syn.v_groove(a_deg=80.0, half=10.0, step=0.5)
+    d = pencil.draw_samples(m.V, m.F, 30.0, seed=3)
+    for b in (0.2, 0.5, 0.9):
+        steep = pencil.surface_samples(m.V, m.F, 30.0, seed=3, below_nz=b)
+        assert 0 < len(steep[0]) < len(d.P)
+        for x, y in zip(d.rows(b), steep):
+            np.testing.assert_array_equal(x, y)
 
 
 @pytest.mark.parametrize("pattern", ["zigzag", "contour", "spiral"])

@@ -168,10 +168,10 @@ def fill_passes(cutter, V, F, passes, h: float, *, depth: float, tol: float, lin
     grid : conformill.folds.DropGrid, optional
         This cutter's fold grid: its heights are used when it has the fill's spacing, with
         the same balls as dropping them anew.
-    samples : tuple, optional
-        What :func:`fill_samples` returned for this part, ``density`` and ``seed``,
-        ``(P, N, density used)``, when drawn beforehand (the pipeline draws them in the
-        pencil's worker while it chains the pencil's centres).
+    samples : conformill.pencil.SurfaceDraw, optional
+        What :func:`fill_samples` returned for this part, ``density`` and ``seed``, when
+        drawn beforehand (the pipeline draws them once, in the pencil's worker where it
+        runs, for the pencil's search and the fill).
     progress : callable, optional
         ``progress(fraction)``.
 
@@ -190,7 +190,8 @@ def fill_passes(cutter, V, F, passes, h: float, *, depth: float, tol: float, lin
     _check(scallop=h, fill_depth=depth, fill_density=density)
     say = progress or (lambda f: None)
     r = cutter.radius
-    P, N, density = fill_samples(cutter, V, F, density, seed) if samples is None else samples
+    drawn = fill_samples(cutter, V, F, density, seed) if samples is None else samples
+    P, N, density = drawn.P, drawn.N, drawn.density
     say(0.1)
     # the samples a grid ball comes within give of, then those the passes left: the same
     # balls as the other way round, with the passes' test on fewer samples
@@ -214,11 +215,11 @@ def fill_passes(cutter, V, F, passes, h: float, *, depth: float, tol: float, lin
 
 def fill_samples(cutter, V, F, density: float = FILL_DENSITY, seed: int = FILL_SEED):
     """The fill's area-uniform surface samples facing the tool
-    (:func:`conformill.pencil.surface_samples`): ``(P, N, density)``, the density lowered,
-    with a warning, where the part would give more samples or grid points than the
-    pencil's caps (a huge part: wrong units?)."""
+    (:func:`conformill.pencil.surface_samples`), a :class:`conformill.pencil.SurfaceDraw`:
+    the density lowered, with a warning, where the part would give more samples or grid
+    points than the pencil's caps (a huge part: wrong units?)."""
     from conformill.folds import _MAX_GRID, _grid_box
-    from conformill.pencil import _MAX_SAMPLES, _face_areas, surface_samples
+    from conformill.pencil import _MAX_SAMPLES, _face_areas, draw_samples
 
     _check(fill_density=density)
     V = np.asarray(V, dtype=np.float64)
@@ -230,5 +231,4 @@ def fill_samples(cutter, V, F, density: float = FILL_DENSITY, seed: int = FILL_S
         log.warning("fill: %.3g samples per mm^2 over this part would be more than %dM samples or grid points; "
                     "using %.3g per mm^2", density, _MAX_SAMPLES // 10**6, most)
         density = most
-    P, N, _ = surface_samples(V, F, density, seed, areas=areas)
-    return P, N, float(density)
+    return draw_samples(V, F, density, seed, areas=areas)

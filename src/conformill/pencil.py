@@ -93,8 +93,9 @@ from conformill.cutter import _drop_point, _set_drop, cell_at, xy_barycentric
 from conformill.errors import PlanningError
 from conformill.types import PENCIL_SEARCHES
 
-__all__ = ["SEARCHES", "LeftToCut", "PencilChains", "PencilFound", "PencilResult", "best_centres", "chains_of",
-           "link_chains", "pencil_chains", "pencil_passes", "pencil_search", "surface_samples", "where_left"]
+__all__ = ["SEARCHES", "LeftToCut", "PencilChains", "PencilFound", "PencilResult", "SurfaceDraw", "best_centres",
+           "chains_of", "draw_samples", "link_chains", "pencil_chains", "pencil_passes", "pencil_search",
+           "surface_samples", "where_left"]
 
 log = logging.getLogger(__name__)
 
@@ -425,6 +426,57 @@ def surface_samples(V, F, density: float, seed: int = 0, areas=None, below_nz: f
     key = _cell_order(P) if len(P) else np.zeros(0, dtype=np.int64)
     keep = key[up[key]]
     return P[keep], N[keep], f[keep]
+
+
+@dataclass(frozen=True, eq=False)
+class SurfaceDraw:
+    """One draw of :func:`surface_samples` over the whole part, kept to be used again.
+
+    The fill stage draws its samples over the whole part; the pencil's searches draw the
+    same samples (all of them, or the steep walls' rows) when their density and seed are
+    the same. :func:`draw_samples` draws once, and :func:`pencil_search` takes the rows it
+    would have drawn from here (:meth:`matches`).
+
+    Attributes
+    ----------
+    P, N : (k, 3) float64
+        The samples and their interpolated normals, facing the tool, in cell order.
+    faces : (k,) int64
+    density : float
+        Samples per mm^2 drawn.
+    seed : int
+    """
+
+    P: np.ndarray
+    N: np.ndarray
+    faces: np.ndarray
+    density: float
+    seed: int
+
+    def matches(self, density: float, seed: int) -> bool:
+        """Whether :func:`surface_samples` with ``density`` and ``seed`` draws these."""
+        return float(density) == self.density and int(seed) == self.seed
+
+    def rows(self, below_nz: float | None = None) -> tuple:
+        """``(P, N, faces)``: all the samples, or those whose normal has ``n_z`` below
+        ``below_nz``, as :func:`surface_samples` returns them with that argument."""
+        if below_nz is None:
+            return self.P, self.N, self.faces
+        keep = self.N[:, 2] < below_nz
+        return self.P[keep], self.N[keep], self.faces[keep]
+
+
+def draw_samples(V, F, density: float, seed: int = 0, areas=None) -> SurfaceDraw:
+    """:func:`surface_samples` over the whole part, as a :class:`SurfaceDraw`."""
+    P, N, faces = surface_samples(V, F, density, seed, areas=areas)
+    return SurfaceDraw(P=P, N=N, faces=faces, density=float(density), seed=int(seed))
+
+
+def _drawn_or_new(drawn, V, F, density, seed, areas, below_nz=None):
+    """The rows of ``drawn`` when it is the draw asked for, else a new draw."""
+    if drawn is not None and drawn.matches(density, seed):
+        return drawn.rows(below_nz)
+    return surface_samples(V, F, density, seed, areas=areas, below_nz=below_nz)
 
 
 def _cell_order(P) -> np.ndarray:
@@ -782,15 +834,15 @@ def _check_search(h, density, low, high, search):
 
 def pencil_chains(cutter, V, F, h: float, *, search: str = "samples", density: float = 30.0, low: float = 0.15,
                   high: float = 1.0, min_chain: int = 1, settle_tol: float = 0.0, seed: int = 0, progress=None,
-                  cancelled=None) -> PencilChains | None:
+                  cancelled=None, drawn: SurfaceDraw | None = None) -> PencilChains | None:
     """The search of :func:`pencil_passes` and its chains: everything but the order.
 
     It needs neither the pattern's passes nor the tool's last position, so the pipeline
     runs it beside the pattern stage where numba's threads allow
     (:func:`conformill.passes.threads_can_overlap`). Parameters as for
     :func:`pencil_passes`; ``cancelled``, a callable, is asked between the steps of the
-    search, and ``None`` is returned once it says true. It is :func:`pencil_search`, then
-    :func:`chains_of`.
+    search, and ``None`` is returned once it says true; ``drawn`` as for
+    :func:`pencil_search`. It is :func:`pencil_search`, then :func:`chains_of`.
 
     Returns
     -------
@@ -799,7 +851,7 @@ def pencil_chains(cutter, V, F, h: float, *, search: str = "samples", density: f
     if int(min_chain) < 1:
         raise PlanningError(f"pencil: min_chain must be at least 1, got {min_chain}")
     found = pencil_search(cutter, V, F, h, search=search, density=density, low=low, high=high, seed=seed,
-                          progress=progress, cancelled=cancelled, probes=False)
+                          progress=progress, cancelled=cancelled, probes=False, drawn=drawn)
     if found is None or (cancelled is not None and cancelled()):
         return None
     return chains_of(cutter, found, min_chain, settle_tol)
@@ -807,10 +859,12 @@ def pencil_chains(cutter, V, F, h: float, *, search: str = "samples", density: f
 
 def pencil_search(cutter, V, F, h: float, *, search: str = "samples", density: float = 30.0, low: float = 0.15,
                   high: float = 1.0, seed: int = 0, progress=None, cancelled=None,
-                  probes: bool = True) -> PencilFound | None:
+                  probes: bool = True, drawn: SurfaceDraw | None = None) -> PencilFound | None:
     """The search of :func:`pencil_passes`: the centres, not yet chained (parameters and
     ``cancelled`` as for :func:`pencil_chains`; ``probes=False``: the fold points' shadow
-    probes are not read, all NaN, as when they will not be filtered).
+    probes are not read, all NaN, as when they will not be filtered; ``drawn``: samples
+    already drawn over the part, used where they are the draw the search would make, the
+    same density and seed: the fill's, :func:`conformill.fill.fill_samples`).
 
     Returns
     -------
@@ -837,7 +891,8 @@ def pencil_search(cutter, V, F, h: float, *, search: str = "samples", density: f
         say(0.5)
         if stop():
             return None
-        n_steep, steep = steep_centres(cutter, V, F, h, min(density, _MAX_SAMPLES / area), low, high, seed, areas)
+        n_steep, steep = steep_centres(cutter, V, F, h, min(density, _MAX_SAMPLES / area), low, high, seed, areas,
+                                       drawn=drawn)
         stats = {"search": "folds", **fp.stats, "fold_points": int(len(fp.centres)), "centres": int(kept.sum()),
                  "steep_samples": n_steep, "steep_centres": int(len(steep)),
                  "density_per_mm2": float(density), "low": float(low), "high": float(high)}
@@ -853,7 +908,7 @@ def pencil_search(cutter, V, F, h: float, *, search: str = "samples", density: f
         log.warning("pencil: %.0f mm^2 at %.3g samples per mm^2 would be %.3gM samples; using %.3g per mm^2 "
                     "(at most %dM)", area, density, density * area / 1e6, _MAX_SAMPLES / area, _MAX_SAMPLES // 10**6)
         density = _MAX_SAMPLES / area
-    P, N, faces = surface_samples(V, F, density, seed, areas=areas)
+    P, N, faces = _drawn_or_new(drawn, V, F, density, seed, areas)
     say(0.02)
     k = len(P)
     C = np.empty((k, 3))
@@ -933,12 +988,14 @@ def fold_centres(cutter, spacing: float, h: float, low: float = 0.15):
 
 
 def steep_centres(cutter, V, F, h: float, density: float, low: float = 0.15, high: float = 1.0, seed: int = 0,
-                  areas=None):
+                  areas=None, drawn: SurfaceDraw | None = None):
     """The fold search's second step: on walls steeper than 78 deg a fold running down the
     wall projects to a short XY segment that few grid edges cross, so there the samples
     (``density`` per mm^2) are searched one by one. Returns the number of such samples and
-    the centres ``(k, 3)`` whose rest lies in ``(low * h, high * h]``."""
-    P, N, faces = surface_samples(V, F, density, seed, areas=areas, below_nz=_STEEP_NZ)
+    the centres ``(k, 3)`` whose rest lies in ``(low * h, high * h]``. ``drawn``: the
+    samples over the whole part, whose steep rows are these samples when it has this
+    density and seed (:meth:`SurfaceDraw.rows`)."""
+    P, N, faces = _drawn_or_new(drawn, V, F, density, seed, areas, below_nz=_STEEP_NZ)
     C, rest, state = best_centres(cutter, P, N, faces, low=low * h, give_up=max(_GIVE_UP, high) * h)
     useful = (state == 1) & (rest > low * h) & (rest <= high * h) & np.isfinite(C[:, 2])
     return int(len(P)), C[useful]
@@ -998,15 +1055,14 @@ class BackgroundChains:
         False: run only :func:`pencil_search` (``kwargs`` for it), whose centres the caller
         chains itself once it knows which to keep (``Job.pencil_left``); :meth:`result`
         then gives the :class:`PencilFound`, and nothing is linked.
-    then : callable, optional
-        ``then(cutter)``, run in the worker once its own work is done (after the search
-        with ``chain=False``, else after the links), while the caller chains and links
-        the centres: the fill's samples (:func:`conformill.fill.fill_samples`).
-        :meth:`then_result` gives what it returned. With ``chain=True`` it runs after the
-        links, so :meth:`linked`, which waits for the worker's end, waits for it too.
+    draw : callable, optional
+        ``draw(cutter)``, run in the worker before the search: the fill's samples
+        (:func:`conformill.fill.fill_samples`, a :class:`SurfaceDraw`), which the search
+        uses where they are the samples it would draw (``drawn``). :meth:`drawn` gives
+        what it returned.
     """
 
-    def __init__(self, get_cutter, *args, chain: bool = True, then=None, **kwargs):
+    def __init__(self, get_cutter, *args, chain: bool = True, draw=None, **kwargs):
         import threading
 
         import numba
@@ -1019,10 +1075,11 @@ class BackgroundChains:
         self._go_link = threading.Event()  # link_from() or the end: the worker may go on
         self._link_args = None
         self._found, self._linked, self._error = None, None, None
-        self._then, self._then_out, self._then_error = then, None, None
-        self._then_done = threading.Event()  # then() ended, or will not run
+        self._draw, self._drawn, self._draw_error = draw, None, None
+        self._draw_done = threading.Event()  # draw() ended, or will not run
         self._link_error = None  # raised by linked() only for the start it was asked for
         self.busy_s = 0.0  # the search's time
+        self.draw_s = 0.0  # draw()'s time
         self.link_s = 0.0  # the links' time
         self.fraction = 0.0  # the search's progress, 0 to 1
         self._thread = threading.Thread(target=self._run, name="conformill-pencil", daemon=True)
@@ -1038,13 +1095,20 @@ class BackgroundChains:
             cutter = self._get_cutter()
             if cutter is None or self._stop.is_set():
                 return
+            if self._draw is not None:
+                t0 = time.perf_counter()
+                try:
+                    self._drawn = self._draw(cutter)
+                except BaseException as exc:  # drawn() raises it; the search draws its own
+                    self._draw_error = exc
+                self.draw_s = time.perf_counter() - t0
+                self._draw_done.set()
             t0 = time.perf_counter()
             self._found = self._search(cutter, *self._args, cancelled=self._stop.is_set,
-                                       progress=lambda f: setattr(self, "fraction", f), **self._kwargs)
+                                       progress=lambda f: setattr(self, "fraction", f), drawn=self._drawn,
+                                       **self._kwargs)
             self.busy_s = time.perf_counter() - t0
             self._searched.set()
-            if not isinstance(self._found, PencilChains):  # centres only: nothing to link
-                self._run_then(cutter)
             self._go_link.wait()
             if (isinstance(self._found, PencilChains) and self._link_args is not None
                     and not self._stop.is_set()):
@@ -1054,34 +1118,21 @@ class BackgroundChains:
                 except BaseException as exc:  # linked() raises it only if these were the links wanted
                     self._link_error = exc
                 self.link_s = time.perf_counter() - t0
-            self._run_then(cutter)
         except BaseException as exc:  # handed to the caller by result() / linked()
             self._error = exc
         finally:
             self._searched.set()
-            self._then_done.set()
+            self._draw_done.set()
 
-    def _run_then(self, cutter):
-        if self._then is None or self._then_done.is_set() or self._stop.is_set():
-            return
-        try:
-            self._then_out = self._then(cutter)
-        except BaseException as exc:  # then_result() raises it
-            self._then_error = exc
-        self._then_done.set()
-
-    def then_result(self):
-        """What ``then(cutter)`` returned, once it ran (``None`` when it did not: no
-        ``then``, no cutter, the search failed or the worker was stopped); raises what it
-        raised. Waits for it, but not for links :meth:`linked` was not asked for."""
-        if self._then is None:
+    def drawn(self):
+        """What ``draw(cutter)`` returned, once it ran (``None`` when it did not: no
+        ``draw``, no cutter, or the worker was stopped first); raises what it raised."""
+        if self._draw is None:
             return None
-        if self._link_args is None:
-            self._go_link.set()  # no links asked for: the worker goes on to then()
-        self._then_done.wait()
-        if self._then_error is not None:
-            raise self._then_error
-        return self._then_out
+        self._draw_done.wait()
+        if self._draw_error is not None:
+            raise self._draw_error
+        return self._drawn
 
     def link_from(self, start_xy, tol: float, link_max: float) -> None:
         """Link the chains from ``start_xy`` in the worker once they are found

@@ -724,17 +724,17 @@ def _plan_once(mesh: Mesh, job: Job, progress=None) -> PlanResult:
     # to keep; else the search chains them at once
     filtered = job.pencil_left is not None
     chain_kw = {} if filtered else {"settle_tol": job.settle * h}
+    if job.fill is not None:
+        from conformill.fill import FILL_DENSITY, FILL_SEED, fill_passes, fill_samples
     if job.pencil and builder.threaded:
         from conformill.pencil import BackgroundChains
 
         # the pencil's search needs only the part and the ball: it runs beside the map and
         # the pattern stage, on the cutter the worker builds (the same chains either way)
-        then = None
-        if job.fill is not None:  # the fill's samples, drawn by the worker once its search is done
-            from conformill.fill import FILL_DENSITY, FILL_SEED, fill_samples
-
-            then = (lambda cutter: fill_samples(cutter, mesh.V, mesh.F, FILL_DENSITY, FILL_SEED))
-        background = BackgroundChains(builder.wait_cutter, *search_args, chain=not filtered, then=then,
+        draw = None
+        if job.fill is not None:  # the fill's samples, drawn by the worker before its search, which uses them
+            draw = (lambda cutter: fill_samples(cutter, mesh.V, mesh.F, FILL_DENSITY, FILL_SEED))
+        background = BackgroundChains(builder.wait_cutter, *search_args, chain=not filtered, draw=draw,
                                       **search_kw, **chain_kw)
     with builder, (background or nullcontext()):  # stop the workers if a stage fails
         say("parameterize", 0.0)
@@ -855,8 +855,13 @@ def _plan_once(mesh: Mesh, job: Job, progress=None) -> PlanResult:
                      "minutes_saved": builder.hop_saved}
         pencil = None
         fold_grid = None  # the fold search's grid of drops (conformill.folds.DropGrid)
+        drawn = None  # the fill's samples, drawn once for the pencil's search and the fill
         if job.pencil or job.fill is not None:  # their cutter: the worker's, or built once here (nothing cut)
             cutter = builder.cutter if builder.cutter is not None else BallCutter(mesh.V, mesh.F, r_cut)
+            if job.fill is not None:
+                with timer("fill"):  # the worker's draw, or drawn here
+                    drawn = background.drawn() if background is not None else \
+                        fill_samples(cutter, mesh.V, mesh.F, FILL_DENSITY, FILL_SEED)
         if job.pencil:
             from conformill.pencil import LeftToCut, chains_of, link_chains, pencil_chains, pencil_search
 
@@ -865,7 +870,7 @@ def _plan_once(mesh: Mesh, job: Job, progress=None) -> PlanResult:
                 start = passes[-1][-1, :2] if passes else mesh.V[:, :2].mean(axis=0)
                 if filtered:  # the centres where the pattern left more than pencil_left h
                     if left is None:
-                        found = pencil_search(cutter, *search_args, **search_kw,
+                        found = pencil_search(cutter, *search_args, **search_kw, drawn=drawn,
                                               progress=lambda f: say("pencil", 0.8 * f))
                         left = LeftToCut(found, r_cut, job.pencil_left * h)
                     with timer("pencil_left"):
@@ -885,21 +890,18 @@ def _plan_once(mesh: Mesh, job: Job, progress=None) -> PlanResult:
                     if pencil is None:  # the passes did not end where the builder expected
                         pencil = link_chains(cutter, background.result(), e, link_max, start)
                 else:
-                    found = pencil_chains(cutter, *search_args, **search_kw, **chain_kw,
+                    found = pencil_chains(cutter, *search_args, **search_kw, **chain_kw, drawn=drawn,
                                           progress=lambda f: say("pencil", 0.9 * f))
                     pencil = link_chains(cutter, found, e, link_max, start)
                 passes, pass_ids, hops = _after(cutter, passes, pass_ids, hops, pencil.passes, job.hop_lift > 0)
         fill = None
         if job.fill is not None:
-            from conformill.fill import FILL_DENSITY, FILL_SEED, fill_passes
-
             say("fill", 0.0)
             with timer("fill"):
                 start = passes[-1][-1, :2] if passes else mesh.V[:, :2].mean(axis=0)
-                samples = background.then_result() if background is not None else None
                 fill = fill_passes(cutter, mesh.V, mesh.F, passes, h, depth=job.fill, tol=e, link_max=link_max,
                                    start_xy=start, density=FILL_DENSITY, seed=FILL_SEED, settle_tol=job.settle * h,
-                                   grid=fold_grid, samples=samples,
+                                   grid=fold_grid, samples=drawn,
                                    progress=lambda f: say("fill", f))
                 passes, pass_ids, hops = _after(cutter, passes, pass_ids, hops, fill.passes, job.hop_lift > 0)
     if stock:  # the tips so far are those of the ball of radius r_cut: the ball of radius r is stock higher

@@ -319,6 +319,8 @@ def test_the_samples_drawn_in_the_pencils_worker_are_the_fills_own():
         numba.set_num_threads(n)
     a, b = (o.report["fill"] for o in out)
     assert a["samples"] > 1000 and a["balls"] > 0 and a == b
+    # the worker's time for the draw is reported where the worker drew
+    assert out[0].report["timings_s"]["fill_draw"] > 0 and "fill_draw" not in out[1].report["timings_s"]
     assert len(out[0].toolpath.passes) == len(out[1].toolpath.passes)
     for p, q in zip(out[0].toolpath.passes, out[1].toolpath.passes):
         np.testing.assert_array_equal(p, q)

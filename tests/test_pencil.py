@@ -350,6 +350,9 @@ class TestChains:
         np.testing.assert_array_equal(Ps, P[steep])
         np.testing.assert_array_equal(Ns, N[steep])
         np.testing.assert_array_equal(fs, f[steep])
+        # and SurfaceDraw.rows gives them from one draw
+        for x, y in zip(pencil.draw_samples(m.V, m.F, 20.0, seed=2).rows(0.4), (Ps, Ns, fs)):
+            np.testing.assert_array_equal(x, y)
 
 @pytest.mark.parametrize("search", pencil.SEARCHES)
 def test_plan_with_pencil_adds_passes_after_the_same_program(tmp_path, search):
@@ -476,7 +479,7 @@ def test_background_draw_runs_before_the_search_which_uses_it(chain, search):
     # search then draws its own); None when it never ran (stopped before the cutter)
     import threading
 
-    m = syn.v_groove(a_deg=8.0, half=10.0, step=0.5)
+    m = syn.v_groove(a_deg=80.0, half=6.0, step=0.5)  # walls steeper than 78 deg: steep samples
     cut = BallCutter(m.V, m.F, R)
     seen, drawn = [], pencil.draw_samples(m.V, m.F, 30.0)
     calls = []
@@ -500,6 +503,9 @@ def test_background_draw_runs_before_the_search_which_uses_it(chain, search):
     alone = pencil.BackgroundChains(lambda: cut, m.V, m.F, 0.1, **kw)
     own = alone.result()
     alone.cancel()
+    assert own.stats["centres"] > 0
+    if search == "folds":
+        assert own.stats["steep_samples"] > 0 and own.stats["steep_centres"] > 0
     start = np.array([-9.0, 3.0])
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(pencil, "surface_samples", counted)
@@ -540,27 +546,16 @@ def test_background_draw_runs_before_the_search_which_uses_it(chain, search):
 
 
 def test_a_draw_of_another_density_or_seed_is_not_used():
-    m = syn.v_groove(a_deg=8.0, half=10.0, step=0.5)
+    m = syn.v_groove(a_deg=80.0, half=6.0, step=0.5)  # steep walls: the fold search's steep rows
     cut = BallCutter(m.V, m.F, R)
     for search in pencil.SEARCHES:
         own = pencil.pencil_search(cut, m.V, m.F, 0.1, search=search)
+        assert own.stats["centres"] > 0 and (search == "samples" or own.stats["steep_centres"] > 0)
         for other in (pencil.draw_samples(m.V, m.F, 20.0), pencil.draw_samples(m.V, m.F, 30.0, seed=1)):
             assert not other.matches(30.0, 0)
             got = pencil.pencil_search(cut, m.V, m.F, 0.1, search=search, drawn=other)
             assert got.stats == own.stats
             np.testing.assert_array_equal(got.centres, own.centres)
-
-
-def test_the_steep_rows_of_a_draw_are_the_steep_draw():
-    # surface_samples(below_nz=b) draws the rows of the whole draw whose normal has n_z
-    # below b, in the same order: what SurfaceDraw.rows gives
-    m = syn.v_groove(a_deg=80.0, half=10.0, step=0.5)
-    d = pencil.draw_samples(m.V, m.F, 30.0, seed=3)
-    for b in (0.2, 0.5, 0.9):
-        steep = pencil.surface_samples(m.V, m.F, 30.0, seed=3, below_nz=b)
-        assert 0 < len(steep[0]) < len(d.P)
-        for x, y in zip(d.rows(b), steep):
-            np.testing.assert_array_equal(x, y)
 
 
 @pytest.mark.parametrize("pattern", ["zigzag", "contour", "spiral"])

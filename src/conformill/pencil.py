@@ -454,7 +454,9 @@ class SurfaceDraw:
     seed: int
 
     def matches(self, density: float, seed: int) -> bool:
-        """Whether :func:`surface_samples` with ``density`` and ``seed`` draws these."""
+        """Whether :func:`surface_samples` with ``density`` and ``seed`` draws these (on the
+        part they were drawn on: the part itself is not compared; the callers pass the
+        draw of the part they search)."""
         return float(density) == self.density and int(seed) == self.seed
 
     def rows(self, below_nz: float | None = None) -> tuple:
@@ -1126,7 +1128,8 @@ class BackgroundChains:
 
     def drawn(self):
         """What ``draw(cutter)`` returned, once it ran (``None`` when it did not: no
-        ``draw``, no cutter, or the worker was stopped first); raises what it raised."""
+        ``draw``, no cutter, the worker was stopped first or failed before it, which
+        :meth:`result` and :meth:`linked` raise); raises what ``draw`` raised."""
         if self._draw is None:
             return None
         self._draw_done.wait()

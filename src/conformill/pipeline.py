@@ -862,6 +862,8 @@ def _plan_once(mesh: Mesh, job: Job, progress=None) -> PlanResult:
                 with timer("fill"):  # the worker's draw, or drawn here
                     drawn = background.drawn() if background is not None else \
                         fill_samples(cutter, mesh.V, mesh.F, FILL_DENSITY, FILL_SEED)
+                if background is not None:  # the worker's time for it, before its search
+                    timer.t["fill_draw"] = background.draw_s
         if job.pencil:
             from conformill.pencil import LeftToCut, chains_of, link_chains, pencil_chains, pencil_search
 

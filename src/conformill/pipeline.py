@@ -724,16 +724,17 @@ def _plan_once(mesh: Mesh, job: Job, progress=None) -> PlanResult:
     # to keep; else the search chains them at once
     filtered = job.pencil_left is not None
     chain_kw = {} if filtered else {"settle_tol": job.settle * h}
+    draw = None  # the fill's samples: one draw for the pencil's search and the fill
     if job.fill is not None:
         from conformill.fill import FILL_DENSITY, FILL_SEED, fill_passes, fill_samples
+
+        draw = (lambda cutter: fill_samples(cutter, mesh.V, mesh.F, FILL_DENSITY, FILL_SEED))
     if job.pencil and builder.threaded:
         from conformill.pencil import BackgroundChains
 
         # the pencil's search needs only the part and the ball: it runs beside the map and
-        # the pattern stage, on the cutter the worker builds (the same chains either way)
-        draw = None
-        if job.fill is not None:  # the fill's samples, drawn by the worker before its search, which uses them
-            draw = (lambda cutter: fill_samples(cutter, mesh.V, mesh.F, FILL_DENSITY, FILL_SEED))
+        # the pattern stage, on the cutter the worker builds (the same chains either way);
+        # the worker draws the fill's samples before its search, which uses them
         background = BackgroundChains(builder.wait_cutter, *search_args, chain=not filtered, draw=draw,
                                       **search_kw, **chain_kw)
     with builder, (background or nullcontext()):  # stop the workers if a stage fails
@@ -858,10 +859,9 @@ def _plan_once(mesh: Mesh, job: Job, progress=None) -> PlanResult:
         drawn = None  # the fill's samples, drawn once for the pencil's search and the fill
         if job.pencil or job.fill is not None:  # their cutter: the worker's, or built once here (nothing cut)
             cutter = builder.cutter if builder.cutter is not None else BallCutter(mesh.V, mesh.F, r_cut)
-            if job.fill is not None:
+            if draw is not None:
                 with timer("fill"):  # the worker's draw, or drawn here
-                    drawn = background.drawn() if background is not None else \
-                        fill_samples(cutter, mesh.V, mesh.F, FILL_DENSITY, FILL_SEED)
+                    drawn = background.drawn() if background is not None else draw(cutter)
                 if background is not None:  # the worker's time for it, before its search
                     timer.t["fill_draw"] = background.draw_s
         if job.pencil:

@@ -169,8 +169,12 @@ def main_exit() -> None:  # console-script entry (and ``python -m conformill``)
     ``atexit`` handlers run (logging's flush, the warm-up helper's stop), stdout and
     stderr are flushed and the process ends with ``os._exit``. Where a thread other than the
     main one still runs, under a profiler or a tracer, or where a flush fails, the usual
-    ``sys.exit`` ends it instead.
+    ``sys.exit`` ends it instead. Before :func:`main`, the C allocator is set to reuse
+    freed memory (:func:`conformill.cli.allocator.tune_allocator`).
     """
+    from conformill.cli.allocator import tune_allocator
+
+    tune_allocator()  # the process is the command's: reuse freed memory (cli/allocator.py)
     code = main()
     _exit_now(code)
 

@@ -87,7 +87,9 @@ def test_which_environments_count_as_set_by_the_user():
     assert _user_set({"GLIBC_TUNABLES": "glibc.rtld.nns=2:glibc.malloc.hugetlb=1"})
 
 
-def test_the_command_line_tunes_its_process_and_main_does_not(monkeypatch):
+def test_the_command_line_sets_up_its_process_before_main(monkeypatch):
+    import gc
+
     import conformill.cli.allocator as alloc
     import conformill.cli.main as cli
 
@@ -95,5 +97,6 @@ def test_the_command_line_tunes_its_process_and_main_does_not(monkeypatch):
     monkeypatch.setattr(alloc, "tune_allocator", lambda: calls.append("tuned") or True)
     monkeypatch.setattr(cli, "main", lambda: calls.append("main") or 0)
     monkeypatch.setattr(cli, "_exit_now", lambda code: calls.append(("exit", code)))
+    monkeypatch.setattr(gc, "disable", lambda: calls.append("no gc"))
     cli.main_exit()
-    assert calls == ["tuned", "main", ("exit", 0)]
+    assert calls == ["no gc", "tuned", "main", ("exit", 0)]

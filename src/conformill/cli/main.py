@@ -169,12 +169,24 @@ def main_exit() -> None:  # console-script entry (and ``python -m conformill``)
     ``atexit`` handlers run (logging's flush, the warm-up helper's stop), stdout and
     stderr are flushed and the process ends with ``os._exit``. Where a thread other than the
     main one still runs, under a profiler or a tracer, or where a flush fails, the usual
-    ``sys.exit`` ends it instead. Before :func:`main`, the C allocator is set to reuse
-    freed memory (:func:`conformill.cli.allocator.tune_allocator`).
+    ``sys.exit`` ends it instead.
+
+    The process is the command's, so before :func:`main`:
+
+    - Python's cyclic garbage collector is turned off. The imports make about 195k objects
+      and with it on spend 0.05-0.15 s of their 0.6-0.7 s in collections; a plan leaves
+      about 50-80 objects in cycles, none of them arrays (igea ``--scan``, two plans in one
+      process; the peak of a plan or a check the same within 2 %). Reference counting
+      frees everything else as before.
+    - The C allocator is set to reuse freed memory
+      (:func:`conformill.cli.allocator.tune_allocator`).
     """
+    import gc
+
     from conformill.cli.allocator import tune_allocator
 
-    tune_allocator()  # the process is the command's: reuse freed memory (cli/allocator.py)
+    gc.disable()
+    tune_allocator()  # reuse freed memory (cli/allocator.py)
     code = main()
     _exit_now(code)
 

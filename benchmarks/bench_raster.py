@@ -5,7 +5,8 @@ height ``h`` (ball radius ``r``, chord tolerance ``e``), in one run:
 
 * conformill: ``pipeline.plan`` + ``write_gcode`` for ``zigzag``, ``contour`` and
   ``spiral`` (wall time of both together, after a warm-up plan that loads numba's caches),
-  then each again as ``conformill plan`` in a fresh process (the ``cmd s`` column);
+  then each again as ``conformill plan`` in a fresh process (the ``cmd s`` column; with
+  ``--cmd-runs N`` the median of N such runs, one after another);
 * OpenCAMLib: ``ocl.PathDropCutter`` (ball, ``BallCutter(2 r, ...)``: OCL takes the
   diameter) along a zigzag of straight rows in the XY plane, parallel to the longer
   horizontal extent of the part, written as G-code here (``G21 G90``, ``G0`` to the row
@@ -248,6 +249,8 @@ PENCIL_DENSITY = 30.0
 #: plan with ``conformill plan --scan``'s recipe (``--scan`` of this script: the pencil on the
 #: folds, cut where the pattern left more than 0.5 h, hops over runs lifted 3 mm)
 SCAN = False
+#: ``conformill plan`` runs per program from the command line (``--cmd-runs``): their median
+CMD_RUNS = 1
 
 
 def _job(pattern, r, h, e, feed=1000.0):
@@ -404,7 +407,10 @@ def run_mesh(name, h, r, e, n_samples, folder: Path, log):
     for pat, (p, res, st, wall, cpu) in progs.items():
         q = p.with_name(p.stem + "_cmd.nc")
         try:
-            cmd_wall = command_program(part, pat, r, h, e, q)
+            # CMD_RUNS fresh processes one after another: their median (this host's other
+            # tenants move a single run by up to 2 s)
+            walls = [command_program(part, pat, r, h, e, q) for _ in range(CMD_RUNS)]
+            cmd_wall = float(np.median(walls))
         except RuntimeError as exc:
             log(f"   {_label(pat)} from the command line: FAILED {exc}")
             continue
@@ -412,7 +418,8 @@ def run_mesh(name, h, r, e, n_samples, folder: Path, log):
             log(f"   {_label(pat)} from the command line: NOT the same moves ({q.name})")
             continue
         progs[pat] = (p, res, st, wall, cpu, cmd_wall)
-        log(f"   {_label(pat)} from the command line: {cmd_wall:.2f} s wall (the same moves)")
+        runs = f" (median of {', '.join(f'{w:.2f}' for w in walls)})" if len(walls) > 1 else ""
+        log(f"   {_label(pat)} from the command line: {cmd_wall:.2f} s wall{runs} (the same moves)")
     k1, k2 = _common.principal_curvatures(mesh)
     floor = _common.length_floor(mesh, k1, k2, h, r)
     s, rho = raster_sampling(mesh, k1, k2, r, e)
@@ -542,7 +549,7 @@ def reverify(old: dict, folder: Path, log) -> dict:
 
 
 def main(argv=None) -> int:
-    global SPACING, PATTERNS, PENCIL, PENCIL_DENSITY, SCAN
+    global SPACING, PATTERNS, PENCIL, PENCIL_DENSITY, SCAN, CMD_RUNS
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="h = 0.1 on two small meshes, 100k samples")
     ap.add_argument("--meshes", nargs="*", default=None, help=f"of {', '.join(_common.MESH_FILES)}")
@@ -561,6 +568,8 @@ def main(argv=None) -> int:
     ap.add_argument("--scan", action="store_true",
                     help="plan conformill's programs with conformill plan --scan's recipe (pencil on the folds, "
                          "--pencil-left 0.5, --hop-lifted 3)")
+    ap.add_argument("--cmd-runs", type=int, default=1, metavar="N",
+                    help="run each program's command N times in fresh processes and take the median (default 1)")
     ap.add_argument("--md", default=None, help="write the tables as Markdown here")
     ap.add_argument("--json", default=None, help="write all figures as JSON here")
     ap.add_argument("--reverify", default=None, metavar="OLD.json",
@@ -570,6 +579,7 @@ def main(argv=None) -> int:
     PATTERNS = tuple(args.patterns)
     PENCIL, PENCIL_DENSITY = args.pencil, float(args.pencil_density)
     SCAN = bool(args.scan)
+    CMD_RUNS = max(1, int(args.cmd_runs))
     if SCAN and PENCIL:
         ap.error("--scan sets the pencil search (folds): leave out --pencil")
     if args.reverify and not args.keep:

@@ -3,8 +3,9 @@
 The command line sets glibc's mmap threshold, trim threshold and top pad so that freed
 blocks are reused (:mod:`conformill.cli.allocator`). This runs the same ``conformill plan``
 with them and with glibc's defaults (``CONFORMILL_MALLOC=default``, which tells the command
-to leave the allocator alone; a ``MALLOC_*`` variable would do so too, but setting any of
-them turns off glibc's dynamic mmap threshold), alternating, in fresh processes, and
+to leave the allocator alone; a ``MALLOC_*`` variable would do so too, but setting
+``MALLOC_TOP_PAD_``, ``MALLOC_TRIM_THRESHOLD_``, ``MALLOC_MMAP_THRESHOLD_`` or
+``MALLOC_MMAP_MAX_`` turns off glibc's rising mmap threshold), alternating, in fresh processes, and
 prints per run the wall time, the user and system CPU time, the minor page faults and the
 peak RSS (``os.wait4``), then per setting the median and the ratio tuned / default. The
 programs must be the same bytes (their md5 is compared).

@@ -1,10 +1,14 @@
-"""The command's allocator settings (:mod:`conformill.cli.allocator`): set on glibc, left
-alone when the user set malloc parameters, and they make a freed block reused (no new page
-faults) where glibc would map a fresh one. Each case runs in its own process: the settings
+"""The command's process set-up (:mod:`conformill.cli.allocator`,
+:func:`conformill.cli.main.main_exit`): glibc's allocator set to reuse freed blocks, left
+alone when the user set malloc parameters, nothing set when glibc refuses the mmap
+threshold; the command's modules imported with the cyclic collector off, which is on
+again afterwards; :func:`conformill.cli.main.main` (what tests and programs call) changes
+none of it. The allocator cases that touch glibc run in their own processes: its settings
 are process-wide."""
 
 from __future__ import annotations
 
+import gc
 import os
 import platform
 import subprocess
@@ -12,68 +16,123 @@ import sys
 
 import pytest
 
-from conformill.cli.allocator import MMAP_THRESHOLD, _user_set
+from conformill.cli import allocator as alloc
+from conformill.cli.allocator import (MMAP_THRESHOLD, MMAP_THRESHOLD_CAPPED, TOP_PAD, TRIM_THRESHOLD, _user_set,
+                                      tune_allocator)
 
 _GLIBC = sys.platform.startswith("linux") and platform.libc_ver()[0] == "glibc"
 needs_glibc = pytest.mark.skipif(not _GLIBC, reason="glibc only")
 
-#: In a child: tune (or not), then take a block, touch it, free it, take and touch one of the
-#: same size again; prints whether the tuning took and the minor page faults of the second round.
+#: In a child: tune (or not), take a block of argv[2] bytes and print whether the tuning
+#: took and how many chunks glibc holds as separate mmaps (mallinfo2's ``hblks``: what the
+#: mmap threshold decides, whatever the kernel's huge pages do to page faults), then free
+#: it, take a block of argv[3] bytes and print hblks again.
 _CHILD = """
-import ctypes, resource, sys
+import ctypes, sys
 from conformill.cli.allocator import tune_allocator
 ok = tune_allocator() if sys.argv[1] == "tune" else None
+class Info(ctypes.Structure):
+    _fields_ = [(f, ctypes.c_size_t) for f in
+                ("arena", "ordblks", "smblks", "hblks", "hblkhd", "usmblks", "fsmblks", "uordblks", "fordblks",
+                 "keepcost")]
 libc = ctypes.CDLL(None)
+libc.mallinfo2.restype = Info
 libc.malloc.restype = ctypes.c_void_p
+libc.malloc.argtypes = [ctypes.c_size_t]
 libc.free.argtypes = [ctypes.c_void_p]
-n = int(sys.argv[2])
-def touch():
+out = [str(ok)]
+for n in (int(sys.argv[2]), int(sys.argv[3])):
+    base = libc.mallinfo2().hblks
     p = libc.malloc(n)
     ctypes.memset(p, 1, n)
-    return p
-libc.free(touch())
-f0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
-p = touch()
-f1 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
-libc.free(p)
-print(ok, f1 - f0)
+    out.append(str(libc.mallinfo2().hblks - base))
+    libc.free(p)
+print(" ".join(out))
 """
 
 
-def _child(mode: str, nbytes: int, **env) -> tuple[str, int]:
+def _child(mode: str, first: int, second: int = 0, **env) -> list:
     e = {k: v for k, v in os.environ.items()
-         if not k.startswith("MALLOC_") and k not in ("GLIBC_TUNABLES", "CONFORMILL_MALLOC")}
+         if not k.startswith("MALLOC_") and k not in ("GLIBC_TUNABLES", "CONFORMILL_MALLOC", "LD_PRELOAD")}
     e.update(env)
-    p = subprocess.run([sys.executable, "-c", _CHILD, mode, str(nbytes)], capture_output=True, text=True,
-                       timeout=120, env=e)
+    p = subprocess.run([sys.executable, "-c", _CHILD, mode, str(first), str(second or first)], capture_output=True,
+                       text=True, timeout=120, env=e)
+    if p.returncode != 0 and "mallinfo2" in p.stderr:
+        pytest.skip("glibc without mallinfo2 (before 2.33)")
     assert p.returncode == 0, p.stderr
-    ok, faults = p.stdout.split()
-    return ok, int(faults)
+    return p.stdout.split()
+
+
+MB = 1024 * 1024
+
+
+def test_the_settings_fit_mallopts_int():
+    for v in (MMAP_THRESHOLD, MMAP_THRESHOLD_CAPPED, TRIM_THRESHOLD, TOP_PAD):
+        assert 0 < v <= 2**31 - 1
+    assert MMAP_THRESHOLD_CAPPED <= 32 * MB < MMAP_THRESHOLD  # what glibc before 2.35 accepts
+    assert TOP_PAD < 128 * MB < MMAP_THRESHOLD  # room for the block size the tests below use
 
 
 @needs_glibc
-def test_a_freed_block_is_reused_instead_of_mapped_again():
-    n = 64 * 1024 * 1024  # above glibc's largest dynamic mmap threshold (32 MB), below ours
-    assert n < MMAP_THRESHOLD
-    pages = n // os.sysconf("SC_PAGE_SIZE")
-    ok, faults_tuned = _child("tune", n)
+def test_blocks_below_the_threshold_come_from_the_heap():
+    # 128 MB: above glibc's own largest threshold (32 MB) and above the top pad, below ours
+    ok, first, again = _child("tune", 128 * MB)
     assert ok == "True"
-    _, faults_plain = _child("plain", n)
-    # glibc's default maps the second block afresh: every page faults again when touched
-    assert faults_plain > 0.9 * pages
-    # tuned, the freed block is taken again from the heap: already touched
-    assert faults_tuned < 0.01 * pages
+    assert (first, again) == ("0", "0")
+    _, first, again = _child("plain", 128 * MB)
+    assert (first, again) == ("1", "1")  # glibc's default maps such a block afresh, every time
 
 
 @needs_glibc
 @pytest.mark.parametrize("env", [{"MALLOC_ARENA_MAX": "8"}, {"MALLOC_TOP_PAD_": "131072"},
                                  {"GLIBC_TUNABLES": "glibc.malloc.mmap_threshold=65536"},
-                                 {"MALLOC_MMAP_THRESHOLD_": "65536"}, {"CONFORMILL_MALLOC": "default"}])
+                                 {"MALLOC_MMAP_THRESHOLD_": "65536"}, {"CONFORMILL_MALLOC": "default"},
+                                 {"CONFORMILL_MALLOC": " Default "}])
 def test_the_users_malloc_settings_are_left_as_given(env):
-    n = 64 * 1024 * 1024
-    ok, faults = _child("tune", n, **env)
+    ok, first, _ = _child("tune", 128 * MB, **env)
     assert ok == "False"
-    assert faults > 0.9 * n // os.sysconf("SC_PAGE_SIZE")  # glibc's (or the user's) behaviour
+    assert first == "1"  # glibc's (or the user's) threshold: the block is mapped
+
+
+class _FakeMallopt:
+    """glibc's mallopt as a recorder: accepts what ``accept(param, value)`` says."""
+
+    def __init__(self, accept):
+        self.accept, self.calls = accept, []
+
+    def __call__(self, param, value):
+        self.calls.append((param, value))
+        return 1 if self.accept(param, value) else 0
+
+
+def test_all_three_are_set_mmap_threshold_first():
+    f = _FakeMallopt(lambda p, v: True)
+    assert tune_allocator({}, mallopt=f)
+    assert f.calls == [(-3, MMAP_THRESHOLD), (-1, TRIM_THRESHOLD), (-2, TOP_PAD)]
+
+
+def test_a_capped_glibc_gets_the_capped_threshold():
+    f = _FakeMallopt(lambda p, v: not (p == -3 and v > 32 * MB))
+    assert tune_allocator({}, mallopt=f)
+    assert f.calls == [(-3, MMAP_THRESHOLD), (-3, MMAP_THRESHOLD_CAPPED), (-1, TRIM_THRESHOLD), (-2, TOP_PAD)]
+
+
+def test_nothing_else_is_set_when_the_mmap_threshold_is_refused():
+    # the trim threshold or the top pad alone would stop glibc's own threshold from rising
+    f = _FakeMallopt(lambda p, v: p != -3)
+    assert not tune_allocator({}, mallopt=f)
+    assert all(p == -3 for p, _ in f.calls)
+
+
+def test_no_glibc_no_ctypes_or_another_system_changes_nothing(monkeypatch):
+    monkeypatch.setattr(alloc, "_glibc_mallopt", lambda: None)
+    assert not tune_allocator({})
+    monkeypatch.setattr(alloc.sys, "platform", "darwin")
+    monkeypatch.setattr(alloc, "_glibc_mallopt", lambda: pytest.fail("looked for glibc off Linux"))
+    assert not tune_allocator({})
+    monkeypatch.undo()
+    monkeypatch.setitem(sys.modules, "ctypes", None)  # a Python built without ctypes
+    assert alloc._glibc_mallopt() is None
 
 
 def test_which_environments_count_as_set_by_the_user():
@@ -82,21 +141,62 @@ def test_which_environments_count_as_set_by_the_user():
     assert _user_set({"MALLOC_TRIM_THRESHOLD_": "0"})
     assert _user_set({"MALLOC_CHECK_": "3"})
     assert _user_set({"MALLOC_ARENA_MAX": "2"})
-    assert _user_set({"CONFORMILL_MALLOC": "default"})
-    assert not _user_set({"CONFORMILL_MALLOC": "tuned"})
     assert _user_set({"GLIBC_TUNABLES": "glibc.rtld.nns=2:glibc.malloc.hugetlb=1"})
+    assert _user_set({"CONFORMILL_MALLOC": "default"}) and _user_set({"CONFORMILL_MALLOC": "DEFAULT\n"})
+    assert not _user_set({"CONFORMILL_MALLOC": "tuned"})
 
 
 def test_the_command_line_sets_up_its_process_before_main(monkeypatch):
-    import gc
-
-    import conformill.cli.allocator as alloc
     import conformill.cli.main as cli
 
     calls = []
     monkeypatch.setattr(alloc, "tune_allocator", lambda: calls.append("tuned") or True)
+    monkeypatch.setattr(cli, "_import_work_modules", lambda argv: calls.append(("imports", argv)))
     monkeypatch.setattr(cli, "main", lambda: calls.append("main") or 0)
     monkeypatch.setattr(cli, "_exit_now", lambda code: calls.append(("exit", code)))
-    monkeypatch.setattr(gc, "disable", lambda: calls.append("no gc"))
+    monkeypatch.setattr(sys, "argv", ["conformill", "plan", "part.ply"])
     cli.main_exit()
-    assert calls == ["no gc", "tuned", "main", ("exit", 0)]
+    assert calls == ["tuned", ("imports", ["plan", "part.ply"]), "main", ("exit", 0)]
+
+
+def test_main_itself_changes_neither(monkeypatch, capsys):
+    import conformill.cli.main as cli
+
+    monkeypatch.setattr(alloc, "tune_allocator", lambda *a, **k: pytest.fail("main tuned the allocator"))
+    monkeypatch.setattr(gc, "disable", lambda: pytest.fail("main turned the collector off"))
+    monkeypatch.setattr(gc, "freeze", lambda: pytest.fail("main froze objects"))
+    assert cli.main(["--version"]) == 0
+    assert "conformill" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(("argv", "wanted"), [(["plan", "part.ply", "--scan"], "conformill.pipeline"),
+                                              (["verify", "part.ply", "p.nc"], "conformill.verify.simulate"),
+                                              (["plan", "--help"], None), (["--version"], None), ([], None),
+                                              (["bogus", "x"], None)])
+def test_the_commands_modules_are_imported_with_the_collector_off(monkeypatch, argv, wanted):
+    import conformill.cli.main as cli
+
+    seen = []
+    monkeypatch.setattr(cli.importlib, "import_module", lambda name: seen.append((name, gc.isenabled())))
+    froze = []
+    monkeypatch.setattr(gc, "freeze", lambda: froze.append(gc.isenabled()))
+    assert gc.isenabled()
+    cli._import_work_modules(argv)
+    assert gc.isenabled()  # on again for the work (a cold cache compiles with millions of cycles)
+    if wanted is None:
+        assert seen == [] and froze == []
+    else:
+        assert (wanted, False) in seen and all(not on for _, on in seen)
+        assert froze == [False]
+
+
+def test_a_failing_import_is_left_to_the_command(monkeypatch):
+    import conformill.cli.main as cli
+
+    def boom(name):
+        raise ImportError(f"no module {name}")
+
+    monkeypatch.setattr(cli.importlib, "import_module", boom)
+    monkeypatch.setattr(gc, "freeze", lambda: None)
+    cli._import_work_modules(["plan", "part.ply"])
+    assert gc.isenabled()

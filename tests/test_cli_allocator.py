@@ -200,3 +200,18 @@ def test_a_failing_import_is_left_to_the_command(monkeypatch):
     monkeypatch.setattr(gc, "freeze", lambda: None)
     cli._import_work_modules(["plan", "part.ply"])
     assert gc.isenabled()
+
+
+def test_ctrl_c_during_the_imports_ends_with_130_and_no_traceback(monkeypatch, capsys):
+    import conformill.cli.main as cli
+
+    def interrupted(name):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli.importlib, "import_module", interrupted)
+    monkeypatch.setattr(gc, "freeze", lambda: None)
+    with pytest.raises(SystemExit) as exc:
+        cli._import_work_modules(["plan", "part.ply"])
+    assert exc.value.code == 130
+    assert gc.isenabled()
+    assert capsys.readouterr().err.strip() == "conformill: interrupted"

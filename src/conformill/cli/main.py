@@ -180,8 +180,9 @@ def _import_work_modules(argv) -> None:
     collector is on again for the work itself: a cold numba cache compiles with millions
     of objects in cycles, which it must free (a first plan of ``sample:face`` peaked at
     737 MB with the collector off throughout, 414 MB with it on: the session's review). A
-    failed import is left to the command, which meets it again and reports it; ``--help``,
-    ``--version`` and unknown commands import nothing here.
+    failed import is left to the command, which meets it again and reports it; Ctrl-C ends
+    the process with 130, as during the command; ``--help``, ``--version`` and unknown
+    commands import nothing here.
     """
     import gc
 
@@ -194,6 +195,9 @@ def _import_work_modules(argv) -> None:
     try:
         for name in modules:
             importlib.import_module(name)
+    except KeyboardInterrupt:  # Ctrl-C before the command started: as :func:`_run_command` says it
+        print("conformill: interrupted", file=sys.stderr)
+        raise SystemExit(130) from None
     except Exception:  # noqa: BLE001 - the command imports it again and reports the error
         pass
     finally:

@@ -16,7 +16,8 @@ import conformill.pipeline as pipeline
 from conformill.cutter import BallCutter
 from conformill.errors import PlanningError
 from conformill.mesh import synthetic
-from conformill.passes import BACKGROUND_NICE, PassBuilder, background_priority, serial_caller, threads_can_overlap
+from conformill.passes import (BACKGROUND_NICE, PassBuilder, background_priority, feed_length, serial_caller,
+                               threads_can_overlap)
 from conformill.patterns.pieces import Piece
 from conformill.pipeline import Job, plan
 
@@ -416,3 +417,11 @@ def test_cutter_error_at_the_last_batch_reaches_the_caller(threaded):
     assert caught and "not within the ball's reach" in str(caught[0])
     b.abort()
 
+
+
+def test_feed_length_sums_the_moves_of_each_pass_not_the_joins():
+    a = np.array([[0.0, 0.0, 0.0], [3.0, 4.0, 0.0], [3.0, 4.0, 12.0]])  # 5 + 12
+    b = np.array([[100.0, 0.0, 0.0], [100.0, 0.0, -2.0]])  # 2, far from a's end
+    lone = np.array([[7.0, 7.0, 7.0]])  # one point: no move
+    assert feed_length([a, b, lone]) == pytest.approx(19.0, abs=1e-12)
+    assert feed_length([]) == 0.0 and isinstance(feed_length([]), float)

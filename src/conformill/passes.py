@@ -28,7 +28,7 @@ from numba import njit, prange
 from conformill.errors import PlanningError
 from conformill.patterns.forward import select_forward
 
-__all__ = ["PassBuilder", "threads_can_overlap", "background_priority", "start_worker", "serial_caller"]
+__all__ = ["PassBuilder", "feed_length", "threads_can_overlap", "background_priority", "start_worker", "serial_caller"]
 
 log = logging.getLogger(__name__)
 
@@ -42,6 +42,12 @@ FIRST_BATCH = 4096
 #: (the rapid up starts at the last cut centre, like any retract; a hop is never above
 #: the safe height, which may be lower).
 HOP_CLEARANCE = 1.0
+
+
+def feed_length(passes) -> float:
+    """The summed length (mm) of polylines ``passes`` (``(k_i, 3)`` each): the feed of
+    their moves, without what joins one to the next."""
+    return float(sum(np.linalg.norm(np.diff(p, axis=0), axis=1).sum() for p in passes))
 
 
 def hops_into(cutter, start, pieces) -> list:

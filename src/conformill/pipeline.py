@@ -19,7 +19,7 @@ from conformill.errors import JobValueError, PlanningError
 from conformill.geometry.surface import DomainSurface
 from conformill.output.gcode import coolant_on, path_control, tool_number
 from conformill.patterns.family import Planner
-from conformill.passes import PassBuilder, hops_into, serial_caller, threads_can_overlap
+from conformill.passes import PassBuilder, feed_length, hops_into, serial_caller, threads_can_overlap
 from conformill.planning.steps import check_ball_size, check_meetable, check_params, check_resolution, side_interval
 from conformill.types import PENCIL_SEARCHES, DomainPaths, Mesh, PathParams, PlanResult, ToolPath
 
@@ -605,7 +605,7 @@ def plan(mesh: Mesh, job: Job, progress=None) -> PlanResult:
     if fill is None or job.pattern_scallop <= 1.0:
         return res
     pattern = [q for q, i in zip(res.toolpath.passes, res.toolpath.pass_ids) if i >= 0]
-    pattern_feed = float(sum(np.linalg.norm(np.diff(q, axis=0), axis=1).sum() for q in pattern))
+    pattern_feed = feed_length(pattern)
     ratio = widening_ratio(res.domain_paths)
     saved = (ratio - 1.0) * pattern_feed
     widening = {"pattern_scallop": job.pattern_scallop, "pattern_feed_mm": pattern_feed, "saved_mm": saved,

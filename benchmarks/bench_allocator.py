@@ -23,14 +23,13 @@ import hashlib
 import os
 import shlex
 import statistics
-import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).parent))
 import _common  # noqa: E402
+from bench_param import run_child  # noqa: E402
 
 DEFAULT = _common.MESHES / "large_igea_face_subdiv1.ply"
 #: the command leaves the allocator as glibc has it
@@ -39,15 +38,8 @@ GLIBC_DEFAULT = {"CONFORMILL_MALLOC": "default"}
 
 def run(cmd, env) -> dict:
     """Wall time, CPU times, minor faults and peak RSS of one child (which must succeed)."""
-    t0 = time.perf_counter()
-    p = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env)
-    err = p.stderr.read()
-    _, status, ru = os.wait4(p.pid, 0)
-    wall = time.perf_counter() - t0
-    if os.waitstatus_to_exitcode(status) != 0:
-        sys.exit(f"failed: {shlex.join(cmd)}\n{err.decode(errors='replace')}")
-    return {"wall": wall, "user": ru.ru_utime, "sys": ru.ru_stime, "minflt": ru.ru_minflt,
-            "rss_mb": ru.ru_maxrss / 1024.0}
+    wall, rss, _, ru = run_child(cmd, env=env, rusage=True)
+    return {"wall": wall, "user": ru.ru_utime, "sys": ru.ru_stime, "minflt": ru.ru_minflt, "rss_mb": rss}
 
 
 def main(argv=None) -> int:

@@ -45,16 +45,17 @@ print(f"HARMONIC {time.perf_counter() - t0:.4f} {uv.shape[0]}")
 """
 
 
-def run_child(cmd):
-    """Wall time (s), peak RSS (MB) and stdout of one subprocess.
+def run_child(cmd, env=None, rusage: bool = False):
+    """Wall time (s), peak RSS (MB) and stdout of one subprocess (and, with ``rusage``, its
+    whole ``resource.struct_rusage`` as a fourth item: CPU times, page faults).
 
     The child's pipes are drained while it runs (a child writing more than a pipe holds,
     64 KB, would otherwise wait for a reader for ever); ``os.wait4`` then gives its own
-    peak RSS, which ``subprocess``'s wait would throw away. A failed child ends the script
-    with its stderr.
+    peak RSS, which ``subprocess``'s wait would throw away. ``env``: the child's
+    environment (default this one's). A failed child ends the script with its stderr.
     """
     t0 = time.perf_counter()
-    p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
     got = {}
 
     def drain(name, f):  # bytes, decoded below: a decoding error cannot lose the output
@@ -72,7 +73,7 @@ def run_child(cmd):
     out, err = (got.get(n, b"").decode("utf-8", errors="replace") for n in ("out", "err"))
     if p.returncode != 0:
         raise SystemExit(f"{' '.join(cmd)} failed ({p.returncode}):\n{err}")
-    return wall, ru.ru_maxrss / 1024.0, out
+    return (wall, ru.ru_maxrss / 1024.0, out, ru) if rusage else (wall, ru.ru_maxrss / 1024.0, out)
 
 
 def main(argv=None):

@@ -215,3 +215,15 @@ def test_ctrl_c_during_the_imports_ends_with_130_and_no_traceback(monkeypatch, c
     assert exc.value.code == 130
     assert gc.isenabled()
     assert capsys.readouterr().err.strip() == "conformill: interrupted"
+
+
+def test_every_commands_work_modules_exist():
+    # a misspelt name would be skipped without a word (the command reports its own imports)
+    import importlib
+
+    import conformill.cli.main as cli
+
+    for name, (_, _, modules) in cli.SUBCOMMANDS.items():
+        assert modules, name
+        for m in modules:
+            importlib.import_module(m)

@@ -18,12 +18,17 @@ import warnings
 from conformill import __version__
 from conformill.errors import ConformillError
 
-#: subcommand -> (module, one-line help)
+#: subcommand -> (module, one-line help, the modules its work imports: numpy, scipy, numba,
+#: trimesh and the stages, imported first by :func:`_import_work_modules`)
 SUBCOMMANDS = {
-    "param": ("conformill.cli.param", "conformal parameterization of a disk mesh"),
-    "plan": ("conformill.cli.plan", "plan a ball-end finishing program (G-code)"),
-    "verify": ("conformill.cli.verify", "simulate a G-code program on a mesh and check it"),
-    "view": ("conformill.cli.view", "write a self-contained HTML 3D view of a mesh and program"),
+    "param": ("conformill.cli.param", "conformal parameterization of a disk mesh",
+              ("conformill.param", "conformill.mesh.io")),
+    "plan": ("conformill.cli.plan", "plan a ball-end finishing program (G-code)",
+             ("conformill.pipeline", "conformill.mesh.io", "conformill.output.gcode")),
+    "verify": ("conformill.cli.verify", "simulate a G-code program on a mesh and check it",
+               ("conformill.verify.simulate", "conformill.verify.gcode", "conformill.mesh.io")),
+    "view": ("conformill.cli.view", "write a self-contained HTML 3D view of a mesh and program",
+             ("conformill.output.viewer", "conformill.mesh.io")),
 }
 
 
@@ -65,7 +70,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"conformill {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
-    for name, (modname, help_) in SUBCOMMANDS.items():
+    for name, (modname, help_, _) in SUBCOMMANDS.items():
         p = sub.add_parser(name, help=help_, description=help_)
         p.add_argument("-q", "--quiet", action="store_true", help="no progress bars or summary")
         p.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
@@ -160,15 +165,6 @@ def _run_command(args) -> int:
         return 2
 
 
-#: subcommand -> the modules its work imports (numpy, scipy, numba, trimesh and the stages)
-WORK_MODULES = {
-    "param": ("conformill.param", "conformill.mesh.io"),
-    "plan": ("conformill.pipeline", "conformill.mesh.io", "conformill.output.gcode"),
-    "verify": ("conformill.verify.simulate", "conformill.verify.gcode", "conformill.mesh.io"),
-    "view": ("conformill.output.viewer", "conformill.mesh.io"),
-}
-
-
 def _import_work_modules(argv) -> None:
     """Import the modules the command named in ``argv`` works with, the cyclic garbage
     collector off meanwhile, then freeze what they made out of later collections.
@@ -188,7 +184,7 @@ def _import_work_modules(argv) -> None:
 
     words = [a for a in argv if not a.startswith("-")]
     asks_help = any(a in ("-h", "--help", "--version") for a in argv)
-    modules = WORK_MODULES.get(words[0], ()) if words and not asks_help else ()
+    modules = SUBCOMMANDS[words[0]][2] if words and words[0] in SUBCOMMANDS and not asks_help else ()
     if not modules:
         return
     gc.disable()

@@ -324,21 +324,15 @@ def _scan_cell(px, py, r, r2, T, B, cstart, ctri, EB, c, hc, best, besttri):
         gap = best - _PRUNE_SLACK - EB[e, 4]  # how far the ball must reach above the top
         if gap > hc:
             break
-        # cheap bound from the triangle's XY box and top: top + sqrt(r^2 - q) < best
-        dx = 0.0
-        if px < EB[e, 0]:
-            dx = EB[e, 0] - px
-        elif px > EB[e, 2]:
-            dx = px - EB[e, 2]
-        dy = 0.0
-        if py < EB[e, 1]:
-            dy = EB[e, 1] - py
-        elif py > EB[e, 3]:
-            dy = py - EB[e, 3]
-        q = dx * dx + dy * dy
-        if q > r2:
-            continue
-        if gap > 0.0 and gap * gap > r2 - q:
+        # cheap bound from the triangle's XY box and top: top + sqrt(r^2 - q) < best. One
+        # test for both ways out, the box beyond the ball's reach (q > r^2: then r^2 - q
+        # < 0 <= g^2) and the top too low for its distance (gap > 0, gap^2 > r^2 - q): the
+        # same decisions as a branch per side and per way, with one data-dependent branch
+        # (session 58: the drops 6-9 % quicker, igea and the 620k mesh)
+        dx = max(EB[e, 0] - px, px - EB[e, 2], 0.0)
+        dy = max(EB[e, 1] - py, py - EB[e, 3], 0.0)
+        g = max(gap, 0.0)
+        if g * g > r2 - (dx * dx + dy * dy):
             continue
         t = ctri[e]
         # the ball resting on the triangle's (infinite) plane is never lower
@@ -389,32 +383,26 @@ def _drop_point(px, py, r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czm
     n = 0
     for j in range(j0, j1 + 1):
         cy0 = gy0 + j * cell
-        dy = 0.0
-        if py < cy0:
-            dy = cy0 - py
-        elif py > cy0 + cell:
-            dy = py - cy0 - cell
+        dy = max(cy0 - py, py - cy0 - cell, 0.0)
         for i in range(i0, i1 + 1):
             c = j * ncx + i
             if cstart[c] == cstart[c + 1]:
                 continue
             cx0 = gx0 + i * cell
-            dx = 0.0
-            if px < cx0:
-                dx = cx0 - px
-            elif px > cx0 + cell:
-                dx = px - cx0 - cell
+            dx = max(cx0 - px, px - cx0 - cell, 0.0)
             q = dx * dx + dy * dy
-            if q > r2:
-                continue
             if ordered:
+                if q > r2:
+                    continue
                 cid[n] = c
                 cbound[n] = min(czmax[c] + math.sqrt(r2 - q),
                                 _cell_bound(px, py, r2, cx0, cy0, cell, CP, c))
                 n += 1
             else:
-                gap = best - _PRUNE_SLACK - czmax[c]
-                if gap > 0.0 and gap * gap > r2 - q:
+                # out of reach (q > r2), or too low for its distance: one test (as in
+                # _scan_cell)
+                g = max(best - _PRUNE_SLACK - czmax[c], 0.0)
+                if g * g > r2 - q:
                     continue
                 if _cell_bound(px, py, r2, cx0, cy0, cell, CP, c) + _PRUNE_SLACK < best:
                     continue

@@ -255,7 +255,7 @@ def _tri_drop_all_features(p, tri, r):
 def test_triangle_drop_tests_only_the_facing_edges():
     # _tri_drop tests the facet, then only the edges facing the facet contact (the height
     # is concave over the triangle): the same value as testing every feature
-    from conformill.cutter import _tri_drop
+    from conformill.cutter import _tables, _tri_drop
 
     rng = np.random.default_rng(11)
     r = 3.0
@@ -264,13 +264,9 @@ def test_triangle_drop_tests_only_the_facing_edges():
         tri = rng.uniform([-4, -4, -2], [4, 4, 2], (3, 3))
         if rng.random() < 0.2:  # steep ones too
             tri[:, 2] *= 20
-        T = np.zeros((1, 13))
-        T[0, :9] = tri.reshape(-1)
-        n = np.cross(tri[1] - tri[0], tri[2] - tri[0])
-        n = n / np.linalg.norm(n)
-        T[0, 9:12] = -n if n[2] < 0 else n
-        det = (tri[1, 0] - tri[0, 0]) * (tri[2, 1] - tri[0, 1]) - (tri[1, 1] - tri[0, 1]) * (tri[2, 0] - tri[0, 0])
-        T[0, 12] = 1.0 / det
+        if rng.random() < 0.1:  # a vertical edge (and facet): the edge table's flag
+            tri[1, :2] = tri[0, :2]
+        T, _ = _tables(tri, np.array([[0, 1, 2]]), r)  # the cutter's own table, edges too
         for p in rng.uniform(-8, 8, (20, 2)):
             got = _tri_drop(p[0], p[1], r, r * r, T, 0)
             ref = _tri_drop_all_features(p, tri, r)

@@ -3,6 +3,8 @@ CC -> CL; gouge-safe chord refinement."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -275,6 +277,95 @@ def test_triangle_drop_tests_only_the_facing_edges():
                 n_fin += 1
                 assert got == pytest.approx(ref, abs=1e-9)
     assert n_fin > 2000
+
+
+def _seg_drop_per_call(px, py, r2, a, b):
+    """The edge test as the cutter computed it before the edge table (session 57): length,
+    direction and slope computed at the call, then ``_arc_max``."""
+    from conformill.cutter import _arc_max
+
+    ex, ey = b[0] - a[0], b[1] - a[1]
+    L2 = ex * ex + ey * ey
+    if L2 <= 1e-24:
+        dx, dy = px - a[0], py - a[1]
+        q = dx * dx + dy * dy
+        return -np.inf if q > r2 else max(a[2], b[2]) + math.sqrt(r2 - q)
+    L = math.sqrt(L2)
+    ux, uy = ex / L, ey / L
+    wx, wy = px - a[0], py - a[1]
+    d = wx * uy - wy * ux
+    return _arc_max(r2 - d * d, wx * ux + wy * uy, 0.0, L, (b[2] - a[2]) / L, a[2])
+
+
+def _tri_drop_per_call(px, py, r, T, tri):
+    """``_tri_drop`` with the edges computed at each call (the code before the edge table)."""
+    x0, y0, z0 = T[0, 0:3]
+    nx, ny, nz, idet = T[0, 9:13]
+    a, b, c = tri
+    if nz > 1e-12:
+        cx, cy = px - r * nx, py - r * ny
+        l1 = ((cx - x0) * (T[0, 7] - y0) - (cy - y0) * (T[0, 6] - x0)) * idet
+        l2 = ((T[0, 3] - x0) * (cy - y0) - (T[0, 4] - y0) * (cx - x0)) * idet
+        l0 = 1.0 - l1 - l2
+        if l1 >= 0.0 and l2 >= 0.0 and l0 >= 0.0:
+            return z0 - (nx * (cx - x0) + ny * (cy - y0)) / nz + r * nz
+        best = -np.inf
+        for lk, (u, v) in ((l0, (b, c)), (l1, (c, a)), (l2, (a, b))):
+            if lk < 0.0:
+                best = max(best, _seg_drop_per_call(px, py, r * r, u, v))
+        return best
+    best = _seg_drop_per_call(px, py, r * r, a, b)
+    best = max(best, _seg_drop_per_call(px, py, r * r, b, c))
+    return max(best, _seg_drop_per_call(px, py, r * r, c, a))
+
+
+def test_edge_table_is_the_per_call_arithmetic_bit_for_bit():
+    # the edge columns of _tables (session 58) hold what each edge test computed at the
+    # call: the same operations, so the same bits, and the flag exactly where the old test
+    # took the vertical branch (L^2 <= 1e-24), whichever edge is vertical or nearly so
+    from conformill.cutter import _E0, _EW, _tables, _tri_drop
+
+    rng = np.random.default_rng(58)
+    r = 2.5
+    n_edge = n_flag = 0
+    for k in range(600):
+        tri = rng.uniform([-3, -3, -2], [3, 3, 2], (3, 3))
+        if k % 3 == 0:
+            tri[:, 2] *= 30  # steep
+        e = k % 4  # 0-2: edge e made vertical or nearly so (just either side of the flag)
+        if e < 3 and k % 2 == 0:
+            i, j = [(1, 2), (2, 0), (0, 1)][e]
+            tri[j, :2] = tri[i, :2] + rng.choice([0.0, 0.99e-12, 1.01e-12]) * np.array([1.0, 0.0])
+        T, _ = _tables(tri, np.array([[0, 1, 2]]), r)
+        for kk, (i, j) in enumerate([(1, 2), (2, 0), (0, 1)]):
+            ex, ey = tri[j, 0] - tri[i, 0], tri[j, 1] - tri[i, 1]
+            L2 = ex * ex + ey * ey
+            col = T[0, _E0 + _EW * kk:_E0 + _EW * (kk + 1)]
+            if L2 <= 1e-24:
+                n_flag += 1
+                assert col[0] == -1.0
+                continue
+            L = math.sqrt(L2)
+            m = (tri[j, 2] - tri[i, 2]) / L
+            assert col.tolist() == [L, ex / L, ey / L, m, math.sqrt(1.0 + m * m)]
+        for p in rng.uniform(-6, 6, (12, 2)):
+            got = _tri_drop(p[0], p[1], r, r * r, T, 0)
+            want = _tri_drop_per_call(p[0], p[1], r, T, tri)
+            assert got == want or (np.isinf(got) and np.isinf(want))
+            n_edge += np.isfinite(want)
+    assert n_flag > 50 and n_edge > 1500
+
+
+def test_triangle_table_of_another_width_is_refused():
+    # the kernels cannot see a table's width: a 13-column table (the layout before the edge
+    # columns) would read its edges from the next row; _tri_drop refuses it
+    from conformill.cutter import _tables, _tri_drop
+
+    tri = np.array([[0.0, 0, 0], [1, 0, 0.2], [0, 1, 0.1]])
+    T, _ = _tables(tri, np.array([[0, 1, 2]]), 1.0)
+    with pytest.raises(ValueError, match="columns"):
+        _tri_drop(0.2, 0.2, 1.0, 1.0, np.ascontiguousarray(T[:, :13]), 0)
+    assert np.isfinite(_tri_drop(0.2, 0.2, 1.0, 1.0, T, 0))
 
 
 def test_cell_plane_bound_is_the_maximum_over_the_cell():

@@ -65,13 +65,15 @@ log = logging.getLogger(__name__)
 
 #: Columns of the per-triangle table ``T`` (after the spatial reorder): the vertices, the
 #: unit up normal, 1 / det_xy, then per directed edge ``k`` (``1 -> 2``, ``2 -> 0``,
-#: ``0 -> 1``, from :data:`_E0`, :data:`_EW` columns apart) its XY length ``L`` (-1 for
-#: an edge shorter than 1e-12 in XY), XY unit direction ``ux, uy``, slope ``m = dz / L``
+#: ``0 -> 1``, from :data:`_E0`, :data:`_EW` columns apart) its XY length ``L`` (-1 where
+#: ``L^2 <= 1e-24``: a vertical edge), XY unit direction ``ux, uy``, slope ``m = dz / L``
 #: and ``sqrt(1 + m^2)``: what :func:`_seg_drop` computed at every call (two square roots
 #: and three divisions per edge), with the same arithmetic. Session 58, recorded cutter
 #: calls on one thread: igea's drops 3 % quicker, the pencil's working-set search 5 %; at
 #: 620k faces within 2 % either way (the wider rows cost memory traffic there). The edges
 #: in a table of their own were slower on both (an extra random read per full test).
+#: The kernels cannot see a table's width: :func:`_tri_drop` refuses any other (a 13-column
+#: table would read its edges from the next row).
 _X0, _Y0, _Z0, _X1, _Y1, _Z1, _X2, _Y2, _Z2, _NX, _NY, _NZ, _IDET = range(13)
 _E0, _EW = 13, 5
 _NT = _E0 + 3 * _EW
@@ -147,7 +149,9 @@ def _seg_drop(px, py, r2, T, t, k, ax, ay, az, bz):
     """Centre height of a ball at (px, py) resting on the closed segment a-b, edge ``k`` of
     triangle ``t`` (edge or end vertex); -inf if out of reach: :func:`_arc_max` along the
     edge (XY position in ``[0, L]``, slope ``(bz - az) / L``), the cylinder contact clamped
-    to the segment. The edge's length, direction and slope come from ``T`` (:data:`_E0`).
+    to the segment. The edge's length, direction and slope come from ``T`` (:data:`_E0`);
+    ``ax, ay, az`` are the edge's first vertex and ``bz`` its second's height, as
+    :func:`_tri_drop` passes them.
     """
     c = _E0 + _EW * k
     L = T[t, c]
@@ -211,6 +215,8 @@ def _tri_drop(px, py, r, r2, T, t):
     edge whose line separates the contact from the triangle (a negative barycentric
     coordinate of the contact: at most two edges), ends included.
     """
+    if T.shape[1] != _NT:
+        raise ValueError("_tri_drop: the triangle table must have the columns of _tables")
     x0 = T[t, _X0]
     y0 = T[t, _Y0]
     z0 = T[t, _Z0]
@@ -370,8 +376,9 @@ def _scan_cell(px, py, r, r2, T, B, cstart, ctri, EB, c, hc, best, besttri):
         # cheap bound from the triangle's XY box and top: top + sqrt(r^2 - q) < best. One
         # test for both ways out, the box beyond the ball's reach (q > r^2: then r^2 - q
         # < 0 <= g^2) and the top too low for its distance (gap > 0, gap^2 > r^2 - q): the
-        # same decisions as a branch per side and per way, with one data-dependent branch
-        # (session 58: the drops 6-9 % quicker, igea and the 620k mesh)
+        # same decisions as a branch per side and per way (the box distances' signs are
+        # those of exact differences), with one data-dependent branch (session 58: the
+        # drops 5-9 % quicker, igea and the 620k mesh)
         dx = max(EB[e, 0] - px, px - EB[e, 2], 0.0)
         dy = max(EB[e, 1] - py, py - EB[e, 3], 0.0)
         g = max(gap, 0.0)
@@ -426,13 +433,21 @@ def _drop_point(px, py, r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czm
     n = 0
     for j in range(j0, j1 + 1):
         cy0 = gy0 + j * cell
-        dy = max(cy0 - py, py - cy0 - cell, 0.0)
+        dy = 0.0
+        if py < cy0:
+            dy = cy0 - py
+        elif py > cy0 + cell:
+            dy = py - cy0 - cell
         for i in range(i0, i1 + 1):
             c = j * ncx + i
             if cstart[c] == cstart[c + 1]:
                 continue
             cx0 = gx0 + i * cell
-            dx = max(cx0 - px, px - cx0 - cell, 0.0)
+            dx = 0.0
+            if px < cx0:
+                dx = cx0 - px
+            elif px > cx0 + cell:
+                dx = px - cx0 - cell
             q = dx * dx + dy * dy
             if ordered:
                 if q > r2:
@@ -442,8 +457,8 @@ def _drop_point(px, py, r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czm
                                 _cell_bound(px, py, r2, cx0, cy0, cell, CP, c))
                 n += 1
             else:
-                # out of reach (q > r2), or too low for its distance: one test (as in
-                # _scan_cell)
+                # out of reach (q > r2), or too low for its distance: one test, the same
+                # decisions (see _scan_cell)
                 g = max(best - _PRUNE_SLACK - czmax[c], 0.0)
                 if g * g > r2 - q:
                     continue

@@ -9,11 +9,15 @@ writes the entry address of every compiled conformill kernel it loaded, and a sa
 given to the nearest entry below it (each cached kernel is one block of code). Samples in
 other libraries (numpy, MKL, the kernel's page clearing) keep their own symbols.
 
-Read the shares with two caveats: a kernel called from another kernel counts for its
-caller where numba inlined it (``_scan_cell`` into ``_drop_point``, ``_set_top`` into its
-callers), and for itself where it is called (``_drop_point`` and ``_tri_drop``, which have
-explicit signatures, are shared by every caller). Session 58 on igea contour ``--scan``:
-``_drop_point`` 27 %, ``_tri_drop`` 16 %, ``folds._crossings`` 12 %, then nothing above 3 %.
+Read the shares with these caveats. A kernel that numba inlined counts for its caller
+(``_scan_cell`` in ``_drop_point``, ``_set_top`` in its callers). A kernel called from
+other kernels is linked into each caller's compiled code as a weak copy, and the process
+runs the copy it loaded first: ``_drop_point`` and ``_tri_drop`` (explicit signatures,
+loaded at import) get the samples of every caller, but a helper without a signature that
+is not inlined (``_refine_move``, ``_holding``, ``pencil._model_search`` and about twenty
+more) has no entry of its own, and its samples go to the caller whose code was loaded
+first, which may not be the one that ran it. Session 58 on igea contour ``--scan``:
+``_drop_point`` 26 %, ``_tri_drop`` 16 %, ``folds._crossings`` 12 %, then nothing above 3 %.
 
     python benchmarks/profile_kernels.py [MESH] [--pattern contour] [--scale S] [--default]
         [--freq 1999] [--top 30]
@@ -41,7 +45,8 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _common  # noqa: E402
 
-_CHILD = "CONFORMILL_PROFILE_CHILD"
+#: The first argument that makes this script the recorded child (not a user's option).
+_CHILD = "--recorded-child"
 
 
 def _child(argv) -> int:
@@ -59,7 +64,14 @@ def _child(argv) -> int:
     from conformill.mesh.io import read_mesh
     from conformill.pipeline import Job, plan, scan_recipe
 
-    mesh_arg, pattern, scale, default, ctl, out = argv
+    mesh_arg, pattern, scale, default, ctl, ack, out = argv
+
+    def say(word):  # to perf's control fifo, then wait for its acknowledgement
+        with open(ctl, "w") as f:
+            f.write(word + "\n")
+        with open(ack) as f:
+            f.readline()
+
     if mesh_arg in _common.MESH_FILES:
         mesh = _common.load_part(mesh_arg)[0]
     else:
@@ -67,13 +79,11 @@ def _child(argv) -> int:
     job = Job(pattern=pattern, tool_radius=4.0, scallop=0.01, tolerance=0.01,
               **({} if default == "1" else scan_recipe(pattern)))
     plan(mesh, job)  # numba's caches loaded, first-call costs paid
-    with open(ctl, "w") as f:
-        f.write("enable\n")
+    say("enable")
     t = time.perf_counter()
     plan(mesh, job)
     t = time.perf_counter() - t
-    with open(ctl, "w") as f:
-        f.write("disable\n")
+    say("disable")
     rows = set()
     for name, mod in list(sys.modules.items()):
         if not name.startswith("conformill"):
@@ -82,8 +92,9 @@ def _child(argv) -> int:
             if isinstance(obj, CPUDispatcher):
                 for cres in obj.overloads.values():
                     try:
-                        rows.add((cres.library.get_pointer_to_function(cres.fndesc.llvm_func_name),
-                                  f"{obj.py_func.__module__}.{obj.py_func.__name__}"))
+                        a = cres.library.get_pointer_to_function(cres.fndesc.llvm_func_name)
+                        if a:
+                            rows.add((a, f"{obj.py_func.__module__}.{obj.py_func.__name__}"))
                     except Exception:  # a kernel without a loaded library: nothing to name
                         pass
     with open(out, "w") as f:
@@ -94,8 +105,8 @@ def _child(argv) -> int:
 
 
 def main(argv=None) -> int:
-    if os.environ.get(_CHILD):
-        return _child(sys.argv[1:])
+    if len(sys.argv) > 1 and sys.argv[1] == _CHILD:
+        return _child(sys.argv[2:])
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("mesh", nargs="?", default="igea")
     ap.add_argument("--pattern", default="contour", choices=["zigzag", "contour", "spiral"])
@@ -108,12 +119,14 @@ def main(argv=None) -> int:
         print("profile_kernels: `perf` not found (Linux perf tools)", file=sys.stderr)
         return 2
     with tempfile.TemporaryDirectory() as tmp:
-        ctl, data, addrs = (os.path.join(tmp, n) for n in ("ctl", "perf.data", "addrs.txt"))
+        ctl, ack, data, addrs = (os.path.join(tmp, n) for n in ("ctl", "ack", "perf.data", "addrs.txt"))
         os.mkfifo(ctl)
-        cmd = ["perf", "record", "-q", "-D", "-1", "--control", f"fifo:{ctl}", "-e", "cpu-clock", "-F",
-               str(args.freq), "-o", data, sys.executable, __file__, args.mesh, args.pattern, repr(args.scale),
-               "1" if args.default else "0", ctl, addrs]
-        p = subprocess.run(cmd, env={**os.environ, _CHILD: "1"}, capture_output=True, text=True)
+        os.mkfifo(ack)
+        cmd = ["perf", "record", "-q", "-D", "-1", "--control", f"fifo:{ctl},{ack}", "-e", "cpu-clock", "-F",
+               str(args.freq), "-o", data, sys.executable, __file__, _CHILD, args.mesh, args.pattern,
+               repr(args.scale), "1" if args.default else "0", ctl, ack, addrs]
+        print(f"profile_kernels: planning {args.mesh} twice under perf ...", file=sys.stderr, flush=True)
+        p = subprocess.run(cmd, capture_output=True, text=True)
         if p.returncode != 0 or not os.path.exists(addrs):
             print(f"profile_kernels: perf record failed ({p.returncode}): {p.stderr.strip()[-600:]}", file=sys.stderr)
             return 2
@@ -127,6 +140,10 @@ def main(argv=None) -> int:
         entries.sort()
         keys = [a for a, _ in entries]
         script = subprocess.run(["perf", "script", "-i", data, "-F", "ip,sym"], capture_output=True, text=True)
+        if script.returncode != 0:
+            print(f"profile_kernels: perf script failed ({script.returncode}): {script.stderr.strip()[-600:]}",
+                  file=sys.stderr)
+            return 2
     count = collections.Counter()
     total = 0
     for line in script.stdout.splitlines():
@@ -142,6 +159,9 @@ def main(argv=None) -> int:
         i = bisect.bisect_right(keys, ip) - 1
         # a cached kernel's code lies within a few hundred kB of its entry
         count[entries[i][1] if i >= 0 and ip - keys[i] < (1 << 20) else "(unnamed code)"] += 1
+    if total == 0:
+        print("profile_kernels: perf recorded no samples (is the cpu-clock event allowed?)", file=sys.stderr)
+        return 2
     print(f"{args.mesh} {args.pattern}{'' if args.default else ' --scan'}: {head}, {total} samples "
           f"({args.freq} per s per thread), {_common.machine()}")
     print("| share | kernel or symbol |\n|---|---|")

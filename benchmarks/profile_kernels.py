@@ -61,7 +61,6 @@ def _child(argv) -> int:
 
     tune_allocator()  # glibc's allocator as ``conformill plan`` sets it
 
-    from conformill.mesh.io import read_mesh
     from conformill.pipeline import Job, plan, scan_recipe
 
     mesh_arg, pattern, scale, default, ctl, ack, out = argv
@@ -72,10 +71,7 @@ def _child(argv) -> int:
         with open(ack) as f:
             f.readline()
 
-    if mesh_arg in _common.MESH_FILES:
-        mesh = _common.load_part(mesh_arg)[0]
-    else:
-        mesh = read_mesh(mesh_arg, scale=float(scale))
+    mesh = _common.study_mesh(mesh_arg, float(scale))
     job = Job(pattern=pattern, tool_radius=4.0, scallop=0.01, tolerance=0.01,
               **({} if default == "1" else scan_recipe(pattern)))
     plan(mesh, job)  # numba's caches loaded, first-call costs paid

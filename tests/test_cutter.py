@@ -294,7 +294,8 @@ def _seg_drop_per_call(px, py, r2, a, b):
     ux, uy = ex / L, ey / L
     wx, wy = px - a[0], py - a[1]
     d = wx * uy - wy * ux
-    return _arc_max(r2 - d * d, wx * ux + wy * uy, 0.0, L, (b[2] - a[2]) / L, a[2])
+    m = (b[2] - a[2]) / L
+    return _arc_max(r2 - d * d, wx * ux + wy * uy, 0.0, L, m, math.sqrt(1.0 + m * m), a[2])
 
 
 def _tri_drop_per_call(px, py, r, T, tri):

@@ -123,13 +123,14 @@ _SET_DROP_SIG = _F8(_F8, _F8, _F8, _F8, _M2, _I1, _I8)
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _arc_max(rho2, s0, lo, hi, m, c0):
+def _arc_max(rho2, s0, lo, hi, m, k, c0):
     """Largest ``c0 + m s + sqrt(rho2 - (s - s0)^2)`` over ``s`` in ``[lo, hi]`` with
-    ``|s - s0| <= sqrt(rho2)``; ``-inf`` when that set is empty.
+    ``|s - s0| <= sqrt(rho2)``; ``-inf`` when that set is empty. ``k = sqrt(1 + m^2)``
+    (given: the edges' come from the triangle table).
 
     This is the centre height of a ball resting on a line of slope ``m`` (height ``c0 + m s``)
     that passes ``sqrt(r^2 - rho2)`` from the ball's axis: concave in ``s``, so its maximum
-    is the free one, ``s0 + rho m / sqrt(1 + m^2)``, clamped to the interval.
+    is the free one, ``s0 + rho m / k``, clamped to the interval.
     """
     if rho2 < 0.0:
         return -np.inf
@@ -138,7 +139,7 @@ def _arc_max(rho2, s0, lo, hi, m, c0):
     hi = min(hi, s0 + rho)
     if lo > hi:
         return -np.inf
-    s = s0 + rho * m / math.sqrt(1.0 + m * m)
+    s = s0 + rho * m / k
     s = min(max(s, lo), hi)
     w = s - s0
     return c0 + m * s + math.sqrt(max(rho2 - w * w, 0.0))
@@ -167,21 +168,7 @@ def _seg_drop(px, py, r2, T, t, k, ax, ay, az, bz):
     wx = px - ax
     wy = py - ay
     d = wx * uy - wy * ux
-    rho2 = r2 - d * d
-    if rho2 < 0.0:
-        return -np.inf
-    # _arc_max(rho2, s0, 0, L, m, az) with sqrt(1 + m^2) from the table
-    s0 = wx * ux + wy * uy
-    m = T[t, c + 3]
-    rho = math.sqrt(rho2)
-    lo = max(0.0, s0 - rho)
-    hi = min(L, s0 + rho)
-    if lo > hi:
-        return -np.inf
-    s = s0 + rho * m / T[t, c + 4]
-    s = min(max(s, lo), hi)
-    w = s - s0
-    return az + m * s + math.sqrt(max(rho2 - w * w, 0.0))
+    return _arc_max(r2 - d * d, wx * ux + wy * uy, 0.0, L, T[t, c + 3], T[t, c + 4], az)
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -355,11 +342,11 @@ def _cell_bound(px, py, r2, x0, y0, cell, CP, c):
     if qx < x0 or qx > x1:
         xe = x0 if qx < x0 else x1
         a = xe - px
-        bound = max(bound, _arc_max(r2 - a * a, py, y0, y1, gy, gc + gx * xe))
+        bound = max(bound, _arc_max(r2 - a * a, py, y0, y1, gy, math.sqrt(1.0 + gy * gy), gc + gx * xe))
     if qy < y0 or qy > y1:
         ye = y0 if qy < y0 else y1
         a = ye - py
-        bound = max(bound, _arc_max(r2 - a * a, px, x0, x1, gx, gc + gy * ye))
+        bound = max(bound, _arc_max(r2 - a * a, px, x0, x1, gx, math.sqrt(1.0 + gx * gx), gc + gy * ye))
     return bound
 
 

@@ -217,6 +217,45 @@ def test_result_does_not_depend_on_order_or_grid():
     np.testing.assert_array_equal(BallCutter(m.V, m.F, 3.0, cell=4.0).drop(xy), z)
 
 
+def _max_over_all_triangles(cut, xy):
+    """The drop as the plain maximum of :func:`_tri_drop` over every triangle whose XY box
+    lies within the ball's reach (no other can touch it)."""
+    T, r = cut._T, cut.radius
+    X, Y = T[:, [0, 3, 6]], T[:, [1, 4, 7]]
+    lo, hi = np.column_stack([X.min(1), Y.min(1)]), np.column_stack([X.max(1), Y.max(1)])
+    out = []
+    for p in xy:
+        d = np.maximum(np.maximum(lo - p, p - hi), 0.0)
+        near = np.flatnonzero((d * d).sum(1) <= r * r)
+        out.append(max((_tri_drop(p[0], p[1], r, r * r, T, t) for t in near.tolist()), default=-np.inf))
+    return np.array(out)
+
+
+@pytest.mark.parametrize("spacing, cell", [(6.0, 0.5), (0.4, None)])
+def test_drop_tests_a_triangle_once_and_finds_the_maximum(spacing, cell):
+    # each drop skips the triangles it has tested already from another cell (a
+    # direct-mapped table stamped per drop, reused by the points of a chunk): the result
+    # must stay the maximum over all triangles, bit for bit, with its contact triangle.
+    # Large triangles in small cells: every triangle is an entry of 100+ cells; a fine
+    # mesh: 700 triangles in reach, about a hundred tested per drop, sharing table slots
+    m = syn.freeform_patch(spacing=spacing, jitter=0.3)
+    cut = BallCutter(m.V, m.F, 3.0, cell=cell)
+    rng = np.random.default_rng(11)
+    xy = rng.uniform([-50, -30], [50, 30], (600, 2))
+    xy = xy[np.argsort(xy[:, 0] + 0.01 * xy[:, 1])]  # path-like order: warm starts
+    z, tri = cut._drop(xy, np.full(len(xy), -np.inf))
+    ref = _max_over_all_triangles(cut, xy)
+    np.testing.assert_array_equal(z, ref)
+    hit = tri >= 0
+    assert hit.all() == np.isfinite(ref).all() and hit.sum() > 0.9 * len(xy)
+    at = np.array([_tri_drop(x, y, 3.0, 9.0, cut._T, t) for (x, y), t in zip(xy[hit].tolist(), tri[hit])])
+    np.testing.assert_array_equal(at, z[hit])
+    # with a floor just below the answer (as cl_from_cc drops) the same triangles rise
+    zf, tf = cut._drop(xy, np.where(np.isfinite(ref), ref - 1e-6, -np.inf))
+    np.testing.assert_array_equal(zf[hit], z[hit])
+    assert (tf[hit] >= 0).all()
+
+
 def _tri_drop_all_features(p, tri, r):
     """Closed-form drop onto one triangle by every feature (facet, 3 edges, 3 vertices)."""
     x, y = p

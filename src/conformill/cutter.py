@@ -39,7 +39,8 @@ such a bound.
 A triangle is fully tested only if three upper bounds of its drop height all reach the best
 height: its XY box and top; the ball resting on its infinite plane (``a x + b y + c + r / n_z``);
 and the tangent plane at its centroid of the concave function ``q_z + sqrt(r^2 - |q - p|^2)``
-over the triangle. The previous point's contact triangle (points usually come in path order)
+over the triangle; and once per drop, though several of the cells scanned may hold it.
+The previous point's contact triangle (points usually come in path order)
 gives the first height; without one, cells are visited by decreasing bound. All pruning
 uses a slack of 1e-9 mm, so the result is the exact maximum whatever the visiting order
 (bit-identical for shuffled queries or another cell size), except for a ball whose only
@@ -102,6 +103,9 @@ _FIRST_ROOM = 8
 _MAX_DEPTH = 40
 #: Upper bound on grid cells (memory); the cell size grows when exceeded.
 _MAX_CELLS = 4_000_000
+#: Slots of a drop's table of the triangles it has tested (a power of two, less one: the
+#: mask of a triangle's slot). See :func:`_drop_scratch`.
+_SEEN_MASK = 1023
 
 # Explicit signatures of the kernels that other kernels call: one compiled version each.
 # Left to inference, a literal argument (``-1`` for "no warm start"), an omitted default
@@ -113,13 +117,33 @@ _M2, _V1, _I1, _I4 = _nt.float64[:, ::1], _nt.float64[::1], _nt.int64[::1], _nt.
 #: ``T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, CP``: the grid a drop scans
 _GRID_ARGS = (_M2, _M2, _F8, _F8, _F8, _I8, _I8, _I1, _I4, _V1, _M2, _M2)
 _TRI_DROP_SIG = _F8(_F8, _F8, _F8, _F8, _M2, _I8)
-_DROP_POINT_SIG = _nt.Tuple((_F8, _I8))(_F8, _F8, _F8, _F8, *_GRID_ARGS, _I8, _I1, _V1, _F8, _BOOL)
+_DROP_POINT_SIG = _nt.Tuple((_F8, _I8))(_F8, _F8, _F8, _F8, *_GRID_ARGS, _I8, _I1, _V1, _I1, _F8, _BOOL)
 _SET_DROP_SIG = _F8(_F8, _F8, _F8, _F8, _M2, _I1, _I8)
 
 
 # --------------------------------------------------------------------------------------
 # numba kernels
 # --------------------------------------------------------------------------------------
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _drop_scratch(maxwin):
+    """Working arrays of :func:`_drop_point`, one set per thread task: ``cid, cbound``
+    (the cells of a cold start's window, ``maxwin`` long) and ``seen``.
+
+    ``seen`` remembers the triangles a drop has already tested. A triangle is an entry of
+    every cell its XY box overlaps, and a drop that scans two of those cells tested it
+    twice: on igea's ``cl_from_cc`` drops 10.1 of the 24.6 full tests per drop were such
+    repeats, at 620k faces 6.9 of 24.8 (session 59). A second test can never raise the
+    best height (the first left it at least that high), so skipping it changes nothing.
+    ``seen[k]`` (``k = t & _SEEN_MASK``, direct-mapped) holds ``stamp << 32 | t`` for
+    the last triangle ``t`` in slot ``k`` and ``seen[_SEEN_MASK + 1]`` the count of drops
+    made with the table, whose next value is the drop's stamp: a triangle counts as tested
+    only when its slot holds it with this drop's stamp. A slot shared by two triangles of
+    one drop only costs a repeated test. Zeroed here, so no slot holds a stamp yet.
+    """
+    return (np.empty(maxwin, dtype=np.int64), np.empty(maxwin, dtype=np.float64),
+            np.zeros(_SEEN_MASK + 2, dtype=np.int64))
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -351,8 +375,9 @@ def _cell_bound(px, py, r2, x0, y0, cell, CP, c):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _scan_cell(px, py, r, r2, T, B, cstart, ctri, EB, c, hc, best, besttri):
-    """Test the triangles of cell ``c`` (``hc = sqrt(r^2 - dist(p, cell)^2)``)."""
+def _scan_cell(px, py, r, r2, T, B, cstart, ctri, EB, c, hc, best, besttri, seen, key):
+    """Test the triangles of cell ``c`` (``hc = sqrt(r^2 - dist(p, cell)^2)``); ``seen``,
+    ``key``: the drop's table of tested triangles and its stamp (:func:`_drop_scratch`)."""
     for e in range(cstart[c], cstart[c + 1]):
         # triangles are sorted by decreasing top: a contact *inside this cell* of this or
         # any later triangle is at most top + hc (contacts elsewhere are found through the
@@ -372,6 +397,13 @@ def _scan_cell(px, py, r, r2, T, B, cstart, ctri, EB, c, hc, best, besttri):
         if g * g > r2 - (dx * dx + dy * dy):
             continue
         t = ctri[e]
+        # tested by this drop already, from another cell it overlaps: the triangle-level
+        # bounds below only tighten as the best rises, and a second full test cannot
+        # raise the best
+        slot = t & _SEEN_MASK
+        if seen[slot] == key | t:
+            continue
+        seen[slot] = key | t
         # the ball resting on the triangle's (infinite) plane is never lower
         if B[t, 5] * px + B[t, 6] * py + B[t, 7] + _PRUNE_SLACK < best:
             continue
@@ -386,7 +418,7 @@ def _scan_cell(px, py, r, r2, T, B, cstart, ctri, EB, c, hc, best, besttri):
 
 @njit(_DROP_POINT_SIG, cache=True, nogil=True)
 def _drop_point(px, py, r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, CP,
-                warm, cid, cbound, floor, first):
+                warm, cid, cbound, seen, floor, first):
     """Drop height at one point; returns (height, contact triangle or -1).
 
     With a warm start (the previous point's contact triangle) or a finite ``floor`` (a
@@ -396,10 +428,16 @@ def _drop_point(px, py, r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czm
     The result is ``max(drop, floor)``, with triangle -1 when no triangle rises above
     ``floor``. With ``first`` (and a finite ``floor``) it stops at the first cell that
     holds a triangle rising above ``floor``: only whether one does is then exact.
+    ``cid, cbound, seen``: working arrays from :func:`_drop_scratch` (``seen`` lets a
+    triangle that several scanned cells hold be tested once).
     """
     best = floor
     besttri = -1
+    stamp = seen[_SEEN_MASK + 1] + 1  # this drop's: a slot with an older stamp is free
+    seen[_SEEN_MASK + 1] = stamp
+    key = stamp << 32
     if warm >= 0:
+        seen[warm & _SEEN_MASK] = key | warm
         h = _tri_drop(px, py, r, r2, T, warm)
         if h > best:
             best = h
@@ -452,7 +490,7 @@ def _drop_point(px, py, r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czm
                 if _cell_bound(px, py, r2, cx0, cy0, cell, CP, c) + _PRUNE_SLACK < best:
                     continue
                 best, besttri = _scan_cell(px, py, r, r2, T, B, cstart, ctri, EB, c,
-                                           math.sqrt(r2 - q), best, besttri)
+                                           math.sqrt(r2 - q), best, besttri, seen, key)
                 if first and besttri >= 0:
                     return best, besttri
     # cold start: visit cells by decreasing bound; stop when no cell can raise the best
@@ -474,7 +512,7 @@ def _drop_point(px, py, r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czm
         dx = max(gx0 + i * cell - px, px - gx0 - (i + 1) * cell, 0.0)
         dy = max(gy0 + j * cell - py, py - gy0 - (j + 1) * cell, 0.0)
         best, besttri = _scan_cell(px, py, r, r2, T, B, cstart, ctri, EB, c,
-                                   math.sqrt(max(r2 - dx * dx - dy * dy, 0.0)), best, besttri)
+                                   math.sqrt(max(r2 - dx * dx - dy * dy, 0.0)), best, besttri, seen, key)
     return best, besttri
 
 
@@ -494,8 +532,7 @@ def _drop_many(xy, r, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, C
     nchunks = (k + _CHUNK - 1) // _CHUNK
     r2 = r * r
     for ch in prange(nchunks):
-        cid = np.empty(maxwin, dtype=np.int64)
-        cbound = np.empty(maxwin, dtype=np.float64)
+        cid, cbound, seen = _drop_scratch(maxwin)
         warm = -1
         for p in range(ch * _CHUNK, min(k, (ch + 1) * _CHUNK)):
             w = wa[p] if wa[p] >= 0 else warm
@@ -511,7 +548,7 @@ def _drop_many(xy, r, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, C
                 tri[p] = tb
                 continue
             h, t = _drop_point(xy[p, 0], xy[p, 1], r, r2, T, B, gx0, gy0, cell, ncx, ncy,
-                               cstart, ctri, czmax, EB, CP, w, cid, cbound, f, first)
+                               cstart, ctri, czmax, EB, CP, w, cid, cbound, seen, f, first)
             out[p] = h
             if t >= 0:
                 tri[p] = t
@@ -567,7 +604,7 @@ def _sub_move(K, Fl, i):
 
 @njit(cache=True, nogil=True)
 def _refine_move(ax, ay, az, vx, vy, vz, r, thresh, floor2, l_safe, max_depth, T, B, gx0, gy0, cell, ncx, ncy,
-                 cstart, ctri, czmax, EB, CP, warm, cid, cbound, K, Fl, K2, Fl2, ft, fz, ot, oz):
+                 cstart, ctri, czmax, EB, CP, warm, cid, cbound, seen, K, Fl, K2, Fl2, ft, fz, ot, oz):
     """All the points :meth:`BallCutter.refine` inserts into the move ``a -> a + v``.
 
     The move's chord is refined as a polyline through *nodes* (its ends and the inserted
@@ -612,7 +649,7 @@ def _refine_move(ax, ay, az, vx, vy, vz, r, thresh, floor2, l_safe, max_depth, T
             Fl[j] = _EXACT | _NODE
         else:
             h, tri = _drop_point(ax + t * vx, ay + t * vy, r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri,
-                                 czmax, EB, CP, warm, cid, cbound, az + t * vz, False)
+                                 czmax, EB, CP, warm, cid, cbound, seen, az + t * vz, False)
             K[1, j] = h
             Fl[j] = _EXACT if tri >= 0 else 0
             if tri >= 0:
@@ -647,7 +684,7 @@ def _refine_move(ax, ay, az, vx, vy, vz, r, thresh, floor2, l_safe, max_depth, T
                     else:  # only a bound: drop it exactly, then look again
                         t = K[0, bj]
                         h, tri = _drop_point(ax + t * vx, ay + t * vy, r, r2, T, B, gx0, gy0, cell, ncx, ncy,
-                                             cstart, ctri, czmax, EB, CP, warm, cid, cbound, -np.inf, False)
+                                             cstart, ctri, czmax, EB, CP, warm, cid, cbound, seen, -np.inf, False)
                         K[1, bj] = h
                         Fl[bj] |= _EXACT
             i = b
@@ -684,7 +721,7 @@ def _refine_move(ax, ay, az, vx, vy, vz, r, thresh, floor2, l_safe, max_depth, T
                             if not (Fl[e] & _EXACT):
                                 t = K[0, e]
                                 h, tri = _drop_point(ax + t * vx, ay + t * vy, r, r2, T, B, gx0, gy0, cell, ncx,
-                                                     ncy, cstart, ctri, czmax, EB, CP, warm, cid, cbound, -np.inf,
+                                                     ncy, cstart, ctri, czmax, EB, CP, warm, cid, cbound, seen, -np.inf,
                                                      False)
                                 K[1, e] = h
                             Fl[e] |= _EXACT | _NODE
@@ -709,7 +746,7 @@ def _refine_move(ax, ay, az, vx, vy, vz, r, thresh, floor2, l_safe, max_depth, T
             if f < nf and ft[f] == j:
                 t = 0.5 * (K[0, j] + K[0, j + 1])
                 h, tri = _drop_point(ax + t * vx, ay + t * vy, r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart,
-                                     ctri, czmax, EB, CP, warm, cid, cbound, fz[f], False)
+                                     ctri, czmax, EB, CP, warm, cid, cbound, seen, fz[f], False)
                 K2[0, w] = t
                 K2[1, w] = h
                 Fl2[w] = _EXACT if tri >= 0 else 0
@@ -741,8 +778,7 @@ def _refine_moves(P, seg, r, thresh, floor2, l_safe, max_depth, T, B, gx0, gy0, 
     OZ = np.empty((m, cap))
     nchunks = (m + _CHUNK - 1) // _CHUNK
     for ch in prange(nchunks):
-        cid = np.empty(maxwin, dtype=np.int64)
-        cbound = np.empty(maxwin, dtype=np.float64)
+        cid, cbound, seen = _drop_scratch(maxwin)
         K = np.empty((2, 64))
         Fl = np.zeros(64, dtype=np.int8)
         K2 = np.empty((2, 64))
@@ -755,7 +791,7 @@ def _refine_moves(P, seg, r, thresh, floor2, l_safe, max_depth, T, B, gx0, gy0, 
             ax, ay, az = P[s, 0], P[s, 1], P[s, 2]
             c, warm, K, Fl, K2, Fl2, ft, fz = _refine_move(
                 ax, ay, az, P[s + 1, 0] - ax, P[s + 1, 1] - ay, P[s + 1, 2] - az, r, thresh, floor2, l_safe,
-                max_depth, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, CP, warm, cid, cbound,
+                max_depth, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, CP, warm, cid, cbound, seen,
                 K, Fl, K2, Fl2, ft, fz, OT[i], OZ[i])
             cnt[i] = c
     return cnt, OT, OZ
@@ -778,14 +814,14 @@ def _contact_slope(px, py, pz, t, T, vx, vy):
 
 
 @njit(cache=True, nogil=True)
-def _holding(px, py, pz, t, r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, CP, cid, cbound):
+def _holding(px, py, pz, t, r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, CP, cid, cbound, seen):
     """The triangle holding the centre ``p`` up: ``t`` if its drop height there is ``p_z``
     (within ``_SUPPORT_TOL``), else the one a drop finds at or above ``p_z -
     _FLOOR_SLACK`` (-1: none, the centre floats above ``D``)."""
     if t >= 0 and abs(_tri_drop(px, py, r, r2, T, t) - pz) <= _SUPPORT_TOL:
         return t
     return _drop_point(px, py, r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, CP,
-                       -1, cid, cbound, pz - _FLOOR_SLACK, False)[1]
+                       -1, cid, cbound, seen, pz - _FLOOR_SLACK, False)[1]
 
 
 @njit(cache=True, nogil=True, parallel=True)
@@ -807,16 +843,15 @@ def _highest_floats(P, seg, tri, steps, eps, r, T, B, gx0, gy0, cell, ncx, ncy, 
     r2 = r * r
     nchunks = (m + _CHUNK - 1) // _CHUNK
     for ch in prange(nchunks):
-        cid = np.empty(maxwin, dtype=np.int64)
-        cbound = np.empty(maxwin, dtype=np.float64)
+        cid, cbound, seen = _drop_scratch(maxwin)
         for i in range(ch * _CHUNK, min(m, (ch + 1) * _CHUNK)):
             s = seg[i]
             ax, ay, az = P[s, 0], P[s, 1], P[s, 2]
             vx, vy, vz = P[s + 1, 0] - ax, P[s + 1, 1] - ay, P[s + 1, 2] - az
             kl = _holding(ax, ay, az, tri[s], r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB,
-                          CP, cid, cbound)
+                          CP, cid, cbound, seen)
             kr = _holding(P[s + 1, 0], P[s + 1, 1], P[s + 1, 2], tri[s + 1], r, r2, T, B, gx0, gy0, cell, ncx,
-                          ncy, cstart, ctri, czmax, EB, CP, cid, cbound)
+                          ncy, cstart, ctri, czmax, EB, CP, cid, cbound, seen)
             c0[i] = kl
             c1[i] = kr
             tl, zl, sl = 0.0, az, _contact_slope(ax, ay, az, kl, T, vx, vy)
@@ -831,7 +866,7 @@ def _highest_floats(P, seg, tri, steps, eps, r, T, B, gx0, gy0, cell, ncx, ncy, 
                         tm = tv
                         meet = True
                 h, k = _drop_point(ax + tm * vx, ay + tm * vy, r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart,
-                                   ctri, czmax, EB, CP, kl if tm - tl < tr - tm else kr, cid, cbound, -np.inf,
+                                   ctri, czmax, EB, CP, kl if tm - tl < tr - tm else kr, cid, cbound, seen, -np.inf,
                                    False)
                 lift = az + tm * vz - h
                 if not math.isfinite(lift):

@@ -54,7 +54,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit, prange
 
-from conformill.cutter import _drop_point, _set_drop, _set_top, cell_at, xy_barycentric
+from conformill.cutter import _CHUNK, _drop_point, _drop_scratch, _set_drop, _set_top, cell_at, xy_barycentric
 from conformill.errors import PlanningError
 from conformill.geometry.closest import closest_on_triangle
 
@@ -148,65 +148,66 @@ def _crossings(A, B, TA, TB, QA, QB, r, tol_t, T, Bt, gx0, gy0, cell, ncx, ncy, 
     m = A.shape[0]
     out = np.empty((m, 10))
     r2 = r * r
-    for k in prange(m):
-        cid = np.empty(maxwin, dtype=np.int64)
-        cbound = np.empty(maxwin, dtype=np.float64)
+    # in chunks of edges: the drops' working arrays are made once per chunk
+    for ch in prange((m + _CHUNK - 1) // _CHUNK):
+        cid, cbound, seen = _drop_scratch(maxwin)
         SA = np.empty(_MAX_SIDE, dtype=np.int64)
         SB = np.empty(_MAX_SIDE, dtype=np.int64)
-        SA[0] = TA[k]
-        SB[0] = TB[k]
-        na = 1
-        nb = 1
-        xa, ya, xb, yb = A[k, 0], A[k, 1], B[k, 0], B[k, 1]
-        x = xa
-        y = ya
-        z = -np.inf
-        drops = 0
-        while True:
-            # side A is on top at A, side B at B: bisect for the switch
-            lo = 0.0
-            hi = 1.0
-            while hi - lo > tol_t:
+        for k in range(ch * _CHUNK, min(m, (ch + 1) * _CHUNK)):
+            SA[0] = TA[k]
+            SB[0] = TB[k]
+            na = 1
+            nb = 1
+            xa, ya, xb, yb = A[k, 0], A[k, 1], B[k, 0], B[k, 1]
+            x = xa
+            y = ya
+            z = -np.inf
+            drops = 0
+            while True:
+                # side A is on top at A, side B at B: bisect for the switch
+                lo = 0.0
+                hi = 1.0
+                while hi - lo > tol_t:
+                    t = 0.5 * (lo + hi)
+                    x = xa + t * (xb - xa)
+                    y = ya + t * (yb - ya)
+                    if _set_drop(x, y, r, r2, T, SA, na) >= _set_drop(x, y, r, r2, T, SB, nb):
+                        lo = t
+                    else:
+                        hi = t
                 t = 0.5 * (lo + hi)
                 x = xa + t * (xb - xa)
                 y = ya + t * (yb - ya)
-                if _set_drop(x, y, r, r2, T, SA, na) >= _set_drop(x, y, r, r2, T, SB, nb):
-                    lo = t
+                z = max(_set_drop(x, y, r, r2, T, SA, na), _set_drop(x, y, r, r2, T, SB, nb))
+                hz, tt = _drop_point(x, y, r, r2, T, Bt, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, CP,
+                                     -1, cid, cbound, seen, z + 1e-9, False)
+                drops += 1
+                if tt < 0:
+                    break
+                z = hz  # on D from here, whatever follows
+                qx, qy, qz = _closest(x, y, hz, T, tt)
+                da = (qx - QA[k, 0]) ** 2 + (qy - QA[k, 1]) ** 2 + (qz - QA[k, 2]) ** 2
+                db = (qx - QB[k, 0]) ** 2 + (qy - QB[k, 1]) ** 2 + (qz - QB[k, 2]) ** 2
+                if da <= db:
+                    if na == _MAX_SIDE:
+                        break
+                    SA[na] = tt
+                    na += 1
                 else:
-                    hi = t
-            t = 0.5 * (lo + hi)
-            x = xa + t * (xb - xa)
-            y = ya + t * (yb - ya)
-            z = max(_set_drop(x, y, r, r2, T, SA, na), _set_drop(x, y, r, r2, T, SB, nb))
-            hz, tt = _drop_point(x, y, r, r2, T, Bt, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, CP,
-                                 -1, cid, cbound, z + 1e-9, False)
-            drops += 1
-            if tt < 0:
-                break
-            z = hz  # on D from here, whatever follows
-            qx, qy, qz = _closest(x, y, hz, T, tt)
-            da = (qx - QA[k, 0]) ** 2 + (qy - QA[k, 1]) ** 2 + (qz - QA[k, 2]) ** 2
-            db = (qx - QB[k, 0]) ** 2 + (qy - QB[k, 1]) ** 2 + (qz - QB[k, 2]) ** 2
-            if da <= db:
-                if na == _MAX_SIDE:
-                    break
-                SA[na] = tt
-                na += 1
-            else:
-                if nb == _MAX_SIDE:
-                    break
-                SB[nb] = tt
-                nb += 1
-        ta = _set_top(x, y, r, r2, T, SA, na)[1]
-        tb = _set_top(x, y, r, r2, T, SB, nb)[1]
-        ta = ta if ta >= 0 else SA[0]
-        tb = tb if tb >= 0 else SB[0]
-        out[k, 0] = x
-        out[k, 1] = y
-        out[k, 2] = z
-        out[k, 3], out[k, 4], out[k, 5] = _closest(x, y, z, T, ta)
-        out[k, 6], out[k, 7], out[k, 8] = _closest(x, y, z, T, tb)
-        out[k, 9] = drops
+                    if nb == _MAX_SIDE:
+                        break
+                    SB[nb] = tt
+                    nb += 1
+            ta = _set_top(x, y, r, r2, T, SA, na)[1]
+            tb = _set_top(x, y, r, r2, T, SB, nb)[1]
+            ta = ta if ta >= 0 else SA[0]
+            tb = tb if tb >= 0 else SB[0]
+            out[k, 0] = x
+            out[k, 1] = y
+            out[k, 2] = z
+            out[k, 3], out[k, 4], out[k, 5] = _closest(x, y, z, T, ta)
+            out[k, 6], out[k, 7], out[k, 8] = _closest(x, y, z, T, tb)
+            out[k, 9] = drops
     return out
 
 

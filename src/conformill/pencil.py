@@ -89,7 +89,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import get_num_threads, njit, prange
 
-from conformill.cutter import _drop_point, _set_drop, cell_at, xy_barycentric
+from conformill.cutter import _drop_point, _drop_scratch, _set_drop, cell_at, xy_barycentric
 from conformill.errors import PlanningError
 from conformill.passes import feed_length
 from conformill.types import PENCIL_SEARCHES
@@ -257,8 +257,7 @@ def _best_many(P, N, face, r, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czma
     r2 = r * r
     for b in prange(len(blocks)):
         ch = blocks[b]
-        cid = np.empty(maxwin, dtype=np.int64)
-        cbound = np.empty(maxwin, dtype=np.float64)
+        cid, cbound, seen = _drop_scratch(maxwin)
         W = np.empty(_MAX_W, dtype=np.int64)
         for q in range(ch * _CHUNK, min(k, (ch + 1) * _CHUNK)):
             px, py, pz = P[q, 0], P[q, 1], P[q, 2]
@@ -273,7 +272,7 @@ def _best_many(P, N, face, r, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czma
             tx = px + r * nx
             ty = py + r * ny
             z, t0 = _drop_point(tx, ty, r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, CP,
-                                face[q], cid, cbound, -np.inf, False)
+                                face[q], cid, cbound, seen, -np.inf, False)
             x = tx
             y = ty
             g = _gap(px, py, pz, nx, ny, nz, x, y, z, r2)
@@ -298,12 +297,12 @@ def _best_many(P, N, face, r, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czma
                         break
                     # does any triangle rise above the model here? (stops at the first one)
                     hz, tt = _drop_point(x, y, r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax,
-                                         EB, CP, -1, cid, cbound, z + 1e-9, True)
+                                         EB, CP, -1, cid, cbound, seen, z + 1e-9, True)
                     if tt < 0:
                         break
                     if nw == _MAX_W or it == _MAX_ROUNDS:
                         z, tt = _drop_point(x, y, r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax,
-                                            EB, CP, tt, cid, cbound, -np.inf, False)
+                                            EB, CP, tt, cid, cbound, seen, -np.inf, False)
                         g = _gap(px, py, pz, nx, ny, nz, x, y, z, r2)
                         st = 3
                         break

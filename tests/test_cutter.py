@@ -8,7 +8,9 @@ import math
 import numpy as np
 import pytest
 
-from conformill.cutter import BallCutter, _contact_slope, _tri_drop
+from numba import njit
+
+from conformill.cutter import _CHUNK, _PRUNE_SLACK, BallCutter, _cell_bound, _contact_slope, _tri_drop
 from conformill.errors import MeshError, PlanningError
 from conformill.mesh import synthetic as syn
 
@@ -254,6 +256,80 @@ def test_drop_tests_a_triangle_once_and_finds_the_maximum(spacing, cell):
     zf, tf = cut._drop(xy, np.where(np.isfinite(ref), ref - 1e-6, -np.inf))
     np.testing.assert_array_equal(zf[hit], z[hit])
     assert (tf[hit] >= 0).all()
+
+
+@njit(cache=True)
+def _single_pass_drops(xy, floor, r, T, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, CP, chunk):
+    """The drop of session 58 in its plainest form, as the oracle of which triangle a drop
+    reports where several give the same height: cells in grid order, each skipped by the
+    same cell tests, each cell's entries in order until the first whose top is too low,
+    every one of them tested in full (a test the real drop prunes cannot raise the best),
+    the previous point's contact first (a new start every ``chunk`` points)."""
+    n = xy.shape[0]
+    out = np.empty(n)
+    tri = np.full(n, -1, dtype=np.int64)
+    r2 = r * r
+    warm = -1
+    for p in range(n):
+        if p % chunk == 0:
+            warm = -1
+        px, py = xy[p, 0], xy[p, 1]
+        best = floor[p]
+        besttri = -1
+        if warm >= 0:
+            h = _tri_drop(px, py, r, r2, T, warm)
+            if h > best:
+                best, besttri = h, warm
+        i0 = max(int(math.floor((px - r - gx0) / cell)), 0)
+        i1 = min(int(math.floor((px + r - gx0) / cell)), ncx - 1)
+        j0 = max(int(math.floor((py - r - gy0) / cell)), 0)
+        j1 = min(int(math.floor((py + r - gy0) / cell)), ncy - 1)
+        for j in range(j0, j1 + 1):
+            y0 = gy0 + j * cell
+            dy = py - y0 - cell if py > y0 + cell else (y0 - py if py < y0 else 0.0)
+            for i in range(i0, i1 + 1):
+                c = j * ncx + i
+                if cstart[c] == cstart[c + 1]:
+                    continue
+                x0 = gx0 + i * cell
+                dx = px - x0 - cell if px > x0 + cell else (x0 - px if px < x0 else 0.0)
+                q = dx * dx + dy * dy
+                g = max(best - _PRUNE_SLACK - czmax[c], 0.0)
+                if g * g > r2 - q or _cell_bound(px, py, r2, x0, y0, cell, CP, c) + _PRUNE_SLACK < best:
+                    continue
+                hc = math.sqrt(r2 - q)
+                for e in range(cstart[c], cstart[c + 1]):
+                    t = ctri[e]
+                    if best - _PRUNE_SLACK - max(T[t, 2], T[t, 5], T[t, 8]) > hc:
+                        break
+                    h = _tri_drop(px, py, r, r2, T, t)
+                    if h > best:
+                        best, besttri = h, t
+        out[p] = best
+        tri[p] = besttri
+        if besttri >= 0:
+            warm = besttri
+    return out, tri
+
+
+def test_contact_ties_go_to_the_triangle_a_single_pass_finds_first():
+    # where triangles give the same height (a shared edge or vertex), the drop reports the
+    # one a single pass over the cells and their entries reaches first, whatever the
+    # drop skips or reads in batches: the settle and the pencil take the contacts as
+    # hints, so another tie-break changes programs (a batch read ahead of the cell's end,
+    # a mutant of session 59, changed 2 of these 20000 contacts)
+    m = syn.freeform_patch(spacing=0.5, jitter=0.3)
+    cut = BallCutter(m.V, m.F, 4.0)
+    rng = np.random.default_rng(3)
+    xy = rng.uniform([-50, -30], [50, 30], (20000, 2))
+    xy = xy[np.lexsort((xy[:, 0], np.round(xy[:, 1])))]  # rows: warm starts
+    floor = np.full(len(xy), -1e3)  # finite: cells in grid order from the first point on
+    z, tri = cut._drop(xy, floor)
+    gx0, gy0, cell, ncx, ncy = cut._grid
+    zr, tr = _single_pass_drops(xy, floor, cut.radius, cut._T, gx0, gy0, cell, ncx, ncy, cut._cstart, cut._ctri,
+                                cut._czmax, cut._CP, _CHUNK)
+    np.testing.assert_array_equal(z, zr)
+    np.testing.assert_array_equal(tri, tr)
 
 
 def _tri_drop_all_features(p, tri, r):

@@ -106,6 +106,9 @@ _MAX_CELLS = 4_000_000
 #: Slots of a drop's table of the triangles it has tested (a power of two, less one: the
 #: mask of a triangle's slot). See :func:`_drop_scratch`.
 _SEEN_MASK = 1023
+#: Entries of a cell read at a time by :func:`_scan_cell` (128 at 620k faces: 3 % quicker
+#: than 32 or 64; a cell there holds about 91).
+_BATCH = 128
 
 # Explicit signatures of the kernels that other kernels call: one compiled version each.
 # Left to inference, a literal argument (``-1`` for "no warm start"), an omitted default
@@ -140,10 +143,11 @@ def _drop_scratch(maxwin):
     the last triangle ``t`` in slot ``k`` and ``seen[_SEEN_MASK + 1]`` the count of drops
     made with the table, whose next value is the drop's stamp: a triangle counts as tested
     only when its slot holds it with this drop's stamp. A slot shared by two triangles of
-    one drop only costs a repeated test. Zeroed here, so no slot holds a stamp yet.
+    one drop only costs a repeated test. Zeroed here, so no slot holds a stamp yet. The
+    :data:`_BATCH` entries after the count are :func:`_scan_cell`'s batch.
     """
     return (np.empty(maxwin, dtype=np.int64), np.empty(maxwin, dtype=np.float64),
-            np.zeros(_SEEN_MASK + 2, dtype=np.int64))
+            np.zeros(_SEEN_MASK + 2 + _BATCH, dtype=np.int64))
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -377,42 +381,73 @@ def _cell_bound(px, py, r2, x0, y0, cell, CP, c):
 @njit(cache=True, nogil=True, inline="always")
 def _scan_cell(px, py, r, r2, T, B, cstart, ctri, EB, c, hc, best, besttri, seen, key):
     """Test the triangles of cell ``c`` (``hc = sqrt(r^2 - dist(p, cell)^2)``); ``seen``,
-    ``key``: the drop's table of tested triangles and its stamp (:func:`_drop_scratch`)."""
-    for e in range(cstart[c], cstart[c + 1]):
-        # triangles are sorted by decreasing top: a contact *inside this cell* of this or
-        # any later triangle is at most top + hc (contacts elsewhere are found through the
-        # cells that hold them)
-        gap = best - _PRUNE_SLACK - EB[e, 4]  # how far the ball must reach above the top
-        if gap > hc:
+    ``key``: the drop's table of tested triangles, with room for a batch of entries, and
+    its stamp (:func:`_drop_scratch`).
+
+    The entries are read in batches: first the cheap test of each entry's box and top,
+    without a branch per entry (the entries that pass are written to the batch, and the
+    count grows by the test's outcome), then the other tests of those that passed, in
+    the same order. At 620k faces a drop reads 440 entries for about 100 that pass: a
+    branch on each mispredicted often (session 59: the drops 9-13 % quicker there, 3-5 %
+    on igea). The result is the same bit for bit, the contact triangle included: an entry
+    that passed with the best as the batch began is tested as if in one pass, since the
+    end of the cell's scan is checked again with the current best before each test (a
+    triangle tested before its turn could take a tie from the one the single pass found
+    first), and a test that the single pass would have skipped cannot raise the best.
+    """
+    e = cstart[c]
+    e1 = cstart[c + 1]
+    batch = _SEEN_MASK + 2  # where the batch starts in ``seen``
+    # its room, from the array itself: a caller compiled against another _drop_scratch (a
+    # stale numba cache of a module that inlined it) gets smaller batches, not a write
+    # past the end
+    room = max(seen.shape[0] - batch, 1)
+    while e < e1:
+        n = 0
+        stop = False
+        while e < e1 and n < room:
+            # triangles are sorted by decreasing top: a contact *inside this cell* of this
+            # or any later triangle is at most top + hc (contacts elsewhere are found
+            # through the cells that hold them)
+            gap = best - _PRUNE_SLACK - EB[e, 4]  # how far the ball must reach above the top
+            if gap > hc:
+                stop = True
+                break
+            # cheap bound from the triangle's XY box and top: top + sqrt(r^2 - q) < best.
+            # One test for both ways out, the box beyond the ball's reach (q > r^2: then
+            # r^2 - q < 0 <= g^2) and the top too low for its distance (gap > 0, gap^2 >
+            # r^2 - q): the same decisions as a test per side and per way (the box
+            # distances' signs are those of exact differences; session 58)
+            dx = max(EB[e, 0] - px, px - EB[e, 2], 0.0)
+            dy = max(EB[e, 1] - py, py - EB[e, 3], 0.0)
+            g = max(gap, 0.0)
+            seen[batch + n] = e
+            n += int(g * g <= r2 - (dx * dx + dy * dy))
+            e += 1
+        for k in range(n):
+            eb = seen[batch + k]
+            if best - _PRUNE_SLACK - EB[eb, 4] > hc:  # the best rose: the scan ends here
+                stop = True
+                break
+            t = ctri[eb]
+            # tested by this drop already, from another cell it overlaps: the
+            # triangle-level bounds below only tighten as the best rises, and a second
+            # full test cannot raise the best
+            slot = t & _SEEN_MASK
+            if seen[slot] == key | t:
+                continue
+            seen[slot] = key | t
+            # the ball resting on the triangle's (infinite) plane is never lower
+            if B[t, 5] * px + B[t, 6] * py + B[t, 7] + _PRUNE_SLACK < best:
+                continue
+            if _tangent_bound(px, py, r2, T, B, t) + _PRUNE_SLACK < best:
+                continue
+            h = _tri_drop(px, py, r, r2, T, t)
+            if h > best:
+                best = h
+                besttri = t
+        if stop:
             break
-        # cheap bound from the triangle's XY box and top: top + sqrt(r^2 - q) < best. One
-        # test for both ways out, the box beyond the ball's reach (q > r^2: then r^2 - q
-        # < 0 <= g^2) and the top too low for its distance (gap > 0, gap^2 > r^2 - q): the
-        # same decisions as a branch per side and per way (the box distances' signs are
-        # those of exact differences), with one data-dependent branch (session 58: the
-        # drops 5-9 % quicker, igea and the 620k mesh)
-        dx = max(EB[e, 0] - px, px - EB[e, 2], 0.0)
-        dy = max(EB[e, 1] - py, py - EB[e, 3], 0.0)
-        g = max(gap, 0.0)
-        if g * g > r2 - (dx * dx + dy * dy):
-            continue
-        t = ctri[e]
-        # tested by this drop already, from another cell it overlaps: the triangle-level
-        # bounds below only tighten as the best rises, and a second full test cannot
-        # raise the best
-        slot = t & _SEEN_MASK
-        if seen[slot] == key | t:
-            continue
-        seen[slot] = key | t
-        # the ball resting on the triangle's (infinite) plane is never lower
-        if B[t, 5] * px + B[t, 6] * py + B[t, 7] + _PRUNE_SLACK < best:
-            continue
-        if _tangent_bound(px, py, r2, T, B, t) + _PRUNE_SLACK < best:
-            continue
-        h = _tri_drop(px, py, r, r2, T, t)
-        if h > best:
-            best = h
-            besttri = t
     return best, besttri
 
 

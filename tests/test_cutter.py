@@ -249,13 +249,34 @@ def test_drop_tests_a_triangle_once_and_finds_the_maximum(spacing, cell):
     ref = _max_over_all_triangles(cut, xy)
     np.testing.assert_array_equal(z, ref)
     hit = tri >= 0
-    assert hit.all() == np.isfinite(ref).all() and hit.sum() > 0.9 * len(xy)
+    np.testing.assert_array_equal(hit, np.isfinite(ref))
+    assert hit.sum() > 0.9 * len(xy)
     at = np.array([_tri_drop(x, y, 3.0, 9.0, cut._T, t) for (x, y), t in zip(xy[hit].tolist(), tri[hit])])
     np.testing.assert_array_equal(at, z[hit])
-    # with a floor just below the answer (as cl_from_cc drops) the same triangles rise
+    # with a floor just below the answer (as cl_from_cc drops) a triangle still rises, the
+    # same height (its contact may be another of tied triangles: the cells go in grid
+    # order from the first point on)
     zf, tf = cut._drop(xy, np.where(np.isfinite(ref), ref - 1e-6, -np.inf))
     np.testing.assert_array_equal(zf[hit], z[hit])
     assert (tf[hit] >= 0).all()
+    at = np.array([_tri_drop(x, y, 3.0, 9.0, cut._T, t) for (x, y), t in zip(xy[hit].tolist(), tf[hit])])
+    np.testing.assert_array_equal(at, z[hit])
+
+
+def test_drop_refuses_working_arrays_of_another_size():
+    # the kernels index without checks: a table without the batch's room (an older
+    # _drop_scratch) would be written past its end
+    from conformill.cutter import _SEEN_MASK, _drop_point, _drop_scratch
+
+    m = syn.freeform_patch(spacing=6.0, jitter=0.3)
+    cut = BallCutter(m.V, m.F, 3.0)
+    T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, CP, maxwin = cut._kernel_args()
+    cid, cbound, seen = _drop_scratch(maxwin)
+    args = (0.0, 0.0, 3.0, 9.0, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, CP, -1, cid, cbound)
+    z, t = _drop_point(*args, seen, -np.inf, False)
+    assert t >= 0 and z == cut.drop(np.zeros((1, 2)))[0]
+    with pytest.raises(ValueError, match="_drop_scratch"):
+        _drop_point(*args, np.zeros(_SEEN_MASK + 2, dtype=np.int64), -np.inf, False)
 
 
 @njit(cache=True)

@@ -397,15 +397,11 @@ def _scan_cell(px, py, r, r2, T, B, cstart, ctri, EB, c, hc, best, besttri, seen
     """
     e = cstart[c]
     e1 = cstart[c + 1]
-    batch = _SEEN_MASK + 2  # where the batch starts in ``seen``
-    # its room, from the array itself: a caller compiled against another _drop_scratch (a
-    # stale numba cache of a module that inlined it) gets smaller batches, not a write
-    # past the end
-    room = max(seen.shape[0] - batch, 1)
+    batch = _SEEN_MASK + 2  # where the batch starts in ``seen`` (its room checked by _drop_point)
     while e < e1:
         n = 0
         stop = False
-        while e < e1 and n < room:
+        while e < e1 and n < _BATCH:
             # triangles are sorted by decreasing top: a contact *inside this cell* of this
             # or any later triangle is at most top + hc (contacts elsewhere are found
             # through the cells that hold them)
@@ -466,6 +462,8 @@ def _drop_point(px, py, r, r2, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czm
     ``cid, cbound, seen``: working arrays from :func:`_drop_scratch` (``seen`` lets a
     triangle that several scanned cells hold be tested once).
     """
+    if seen.shape[0] < _SEEN_MASK + 2 + _BATCH:  # the kernels do not check their indices
+        raise ValueError("_drop_point: the working arrays must be those of _drop_scratch")
     best = floor
     besttri = -1
     stamp = seen[_SEEN_MASK + 1] + 1  # this drop's: a slot with an older stamp is free

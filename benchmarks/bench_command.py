@@ -33,16 +33,15 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _common  # noqa: E402
+from bench_param import run_child  # noqa: E402
 
 #: The child that plans in one process (run as ``python -c``): prints a JSON line.
 _IN_PROCESS = r"""
@@ -70,12 +69,9 @@ print(json.dumps({"imports": t_imp, "plans": plans}))
 
 
 def command_run(argv: list, report: Path) -> dict:
-    """One ``conformill plan`` process: its wall time and its report's timings."""
-    t = time.perf_counter()
-    done = subprocess.run(argv + ["--report", str(report), "-q"], capture_output=True, text=True)
-    wall = time.perf_counter() - t
-    if done.returncode != 0:
-        raise RuntimeError(f"conformill plan exited {done.returncode}: {done.stderr.strip()[-400:]}")
+    """One ``conformill plan`` process: its wall time and its report's timings (a failed
+    command ends the script with its stderr, :func:`bench_param.run_child`)."""
+    wall = run_child(argv + ["--report", str(report), "-q"])[0]
     ts = json.loads(report.read_text())["timings_s"]
     # the report's total runs from the read to the G-code written (cli/plan.py)
     return {"wall": wall, "read": ts["read"], "plan": ts["total"] - ts["read"] - ts["gcode"], "gcode": ts["gcode"],
@@ -84,10 +80,8 @@ def command_run(argv: list, report: Path) -> dict:
 
 def in_process_run(spec: dict) -> dict:
     """One process: the work modules imported, then ``spec["plans"]`` plans in a row."""
-    done = subprocess.run([sys.executable, "-c", _IN_PROCESS, json.dumps(spec)], capture_output=True, text=True)
-    if done.returncode != 0:
-        raise RuntimeError(f"the in-process plans failed: {done.stderr.strip()[-400:]}")
-    return json.loads(done.stdout.strip().splitlines()[-1])
+    out = run_child([sys.executable, "-c", _IN_PROCESS, json.dumps(spec)])[2]
+    return json.loads(out.strip().splitlines()[-1])
 
 
 def main(argv=None) -> int:
@@ -129,10 +123,7 @@ def main(argv=None) -> int:
                 "scan": not args.default, "plans": args.plans}
         print(f"{args.mesh}: {args.pattern}{'' if args.default else ' --scan'}, r = {args.r}, h = {args.h}, "
               f"e = {args.e}; {args.runs} commands and {args.runs} warm processes, alternating")
-        command_program = subprocess.run(plan_args + ["-q"], capture_output=True)  # untimed: caches, disk
-        if command_program.returncode != 0:
-            print(f"bench_command: conformill plan failed: {command_program.stderr.decode()[-400:]}", file=sys.stderr)
-            return 2
+        run_child(plan_args + ["-q"])  # untimed: caches, disk
         cmds, procs = [], []
         for _ in range(args.runs):
             cmds.append(command_run(plan_args, tmp / "r.json"))

@@ -42,7 +42,7 @@ def _chains_apart(densities):
     def chains(cutter, V, F, h, *, search="samples", density=30.0, low=0.15, high=1.0, min_chain=1,
                settle_tol=0.0, seed=0, progress=None, cancelled=None):
         fp, deep = pencil.fold_centres(cutter, 1.0 / math.sqrt(dg), h, low)
-        _, steep = pencil.steep_centres(cutter, V, F, h, ds, low, high, seed)
+        _, steep, _ = pencil.steep_centres(cutter, V, F, h, ds, low, high, seed)
         B = np.vstack([fp.centres[deep], steep])
         found = pencil.PencilFound(centres=B, probes=np.full((len(B), 1, 3), np.nan), spacing=1.0 / math.sqrt(dc),
                                    stats={"search": "folds", "densities": list(densities)})

@@ -443,8 +443,10 @@ def test_pencil_option_reaches_the_report_the_header_and_the_summary(part, tmp_p
     r = json.loads(rep.read_text())
     assert r["job"]["pencil_left"] == 0.5 and r["pencil"]["left_h"] == 0.5
     assert 0 <= r["pencil"]["fold_points_cut"] <= r["pencil"]["centres"] and "pencil_left" in r["timings_s"]
+    assert 0 <= r["pencil"]["steep_centres_cut"] <= r["pencil"]["steep_centres"]
     assert "(param pencil: folds, grid points per mm2 2, where the pattern leaves above 0.5 H)" in out.read_text()
-    assert f"{r['pencil']['fold_points_cut']} of them where the pattern left above 0.5 H" in capsys.readouterr().out
+    assert (f"{r['pencil']['fold_points_cut']} and {r['pencil']['steep_centres_cut']} of them where the pattern "
+            "left above 0.5 H") in capsys.readouterr().out
     _refused_choice(part, tmp_path, capsys, "--pencil-search", "grid")
     # without the option the header says nothing of it (the default program is unchanged)
     plain = tmp_path / "plain.nc"

@@ -59,10 +59,10 @@ class TestBestCentres:
         N = np.array([n for _, n in rows])
         C, rest, state = best_centres(cut, P, N, _faces_under(m.V, m.F, P))
         assert np.all(state == 1)
-        # the last grid's points lie 2 (r / 1280) / (5 - 1) = 1.6 um apart: the centre is found
-        # to one spacing across the crease (its height to that times tan(a) = 0.14, the slope of
-        # D there), and the rest to 0.1 um
-        spacing = 2 * pencil._SPANS[-1] * R / (pencil._GRIDS[-1] - 1)
+        # the search's simplex ends smaller than 0.0004 r = 1.6 um: the centre is found to
+        # that across the crease (its height to that times tan(a) = 0.14, the slope of D
+        # there), and the rest to 0.1 um
+        spacing = pencil._SIMPLEX_END * R
         for p, n, c, g in zip(P, N, C, rest):
             wedged = np.array([0.0, p[1], R / np.cos(A)])
             assert g == pytest.approx(_ray_gap(p, n, wedged, R), abs=1e-4)
@@ -543,6 +543,63 @@ def test_background_draw_runs_before_the_search_which_uses_it(chain, search):
     assert sum(isinstance(x, tuple) for x in seen) == 1
     with pencil.BackgroundChains(lambda: cut, m.V, m.F, 0.1, **kw) as bg:  # no draw
         assert bg.drawn() is None
+
+
+def _move_dist(Q, passes):
+    """Distance from each point of ``Q`` to the ball-centre moves of tip ``passes``."""
+    A = np.vstack([p[:-1] for p in passes]) + [0, 0, R]
+    B = np.vstack([p[1:] for p in passes]) + [0, 0, R]
+    v = B - A
+    L2 = (v * v).sum(1)
+    out = np.empty(len(Q))
+    for i, q in enumerate(Q):
+        w = q - A
+        t = np.clip((w * v).sum(1) / np.where(L2 > 0, L2, 1.0), 0, 1)
+        out[i] = np.linalg.norm(w - t[:, None] * v, axis=1).min()
+    return out
+
+
+def test_steep_centres_for_the_filter_are_every_searched_sample_within_h():
+    # on steep walls a ball off the tangent one can reach a sample the tangent ball leaves
+    # material on; with the pattern's rest to filter them (probed) such samples keep their
+    # centre, probed at the sample, where without a filter the band (low h, h] drops them
+    from conformill.verify.rest import tangent_rest
+
+    m = syn.v_groove(a_deg=80.0, half=6.0, step=0.5)
+    cut = BallCutter(m.V, m.F, R)
+    h, low = 0.1, 0.15
+    n0, c0, s0 = pencil.steep_centres(cut, m.V, m.F, h, 30.0, low)
+    n1, c1, s1 = pencil.steep_centres(cut, m.V, m.F, h, 30.0, low, probed=True)
+    assert n0 == n1 > 0 and len(c1) > len(c0) > 0
+    # the same draw: the centres without the filter are rows of those with it
+    at = {tuple(p): i for i, p in enumerate(s1)}
+    rows = np.array([at[tuple(p)] for p in s0])
+    np.testing.assert_array_equal(c1[rows], c0)
+    P, N, _ = surface_samples(m.V, m.F, 30.0, below_nz=pencil._STEEP_NZ)
+    at = {tuple(p): i for i, p in enumerate(P)}
+    N1 = N[[at[tuple(p)] for p in s1]]
+    gap = np.array([_ray_gap(p, n, c, R) for p, n, c in zip(s1, N1, c1)])
+    np.testing.assert_allclose(cut.drop(c1[:, :2]), c1[:, 2], atol=1e-9)  # on the drop surface
+    assert np.all(gap <= h + 1e-12) and np.all(tangent_rest(cut, s1, N1) > low * h)
+    extra = np.ones(len(c1), dtype=bool)
+    extra[rows] = False
+    assert np.all(gap[extra] <= low * h + 1e-12) and np.all(gap[~extra] > low * h)
+    # the search gives them their samples as probes (fold points first, then the steep
+    # centres), and the filter cuts a steep centre where the moves pass r + depth from its sample
+    found = pencil.pencil_search(cut, m.V, m.F, h, search="folds")
+    n_fold = found.stats["centres"]
+    assert found.stats["steep_centres"] == len(c1) and found.probed.all()
+    np.testing.assert_array_equal(found.centres[n_fold:], c1)
+    np.testing.assert_array_equal(found.probes[n_fold:], np.repeat(s1[:, None], len(pencil._SHADOW_AT), axis=1))
+    assert np.isnan(pencil.pencil_search(cut, m.V, m.F, h, search="folds", probes=False).probes[n_fold:]).all()
+    # a pass along the groove's first half (tip 0.05 mm below the steep centres there)
+    first = c1[c1[:, 1] < np.median(c1[:, 1])]
+    tip = [first[np.argsort(first[:, 1])] - [0.0, 0.0, R + 0.05]]
+    depth = 0.5 * h
+    keep = pencil.where_left(found, tip, R, depth)[n_fold:]
+    d = _move_dist(s1, tip)
+    assert 0 < keep.sum() < len(keep)
+    assert np.all(keep[d > R + depth + 1e-9]) and not np.any(keep[d < R + depth - 1e-9])
 
 
 def test_a_draw_of_another_density_or_seed_is_not_used():

@@ -14,7 +14,14 @@ wedged ball's centre lies on such a fold, and its *shadow* (the part between its
 contacts) is what it leaves; fold points whose shadow is deeper than ``low h`` are
 centres. Where the part is steeper than 78 deg (sample normal ``n_z < 0.2``) a fold
 projects to a short XY segment that the grid crosses too rarely, so the samples there are
-searched one by one as below, and their band centres join the fold points. Against the
+searched one by one as below, and their band centres join the fold points. When the
+pattern's rest filters the centres (``Job.pencil_left``, as ``plan --scan`` does), each
+steep centre is probed at its sample, and the band's lower end no longer applies there:
+every searched steep sample (its tangent ball leaves more than ``low h``) whose best ball
+leaves at most ``h`` gives a centre, cut where the pattern left more than the filter's
+depth at the sample. A best ball that comes within ``low h`` off the tangent one is not one
+the pattern or the fill need place (session 61: with the model search below, the lion
+relief's contour left 1.37 h without this, 1.18 h with it; docs/issue5.md). Against the
 per-sample search on the eight scans measured, this left a lower verified scallop on
 five, the same on two and a higher one on the lion relief (which fails either way), in
 18-51 % less time, but for 1-15 points more feed (+16 % against +10 % on igea: twelve
@@ -32,20 +39,21 @@ thinned, chained into polylines, settled into the valleys between them, refined
 The search per sample works on a *working-set model* of ``D``: the drop height over a
 few triangles only (``D_W <= D``, cheap to evaluate), starting from the sample's own
 triangle and the contact of the tangent ball (the ball touching ``p`` along its normal,
-dropped). The best centre of the model is searched on grids of 7 x 7 centres over
-+-0.2 r around the tangent centre and +-r/20 around the best one, then of 5 x 5 over +-r/80,
-+-r/320 and +-r/1280 (the shape of :func:`conformill.verify.rest.rest_material`'s search with
-one start, on smaller grids: that one starts from 25 x 25 centres over +-0.4 r and refines on
-9 x 9; 5 x 5 on the last three levels costs 12-19 % less CPU than 7 x 7 on igea and left the
-same scallop, session 22, docs/issue5.md "Pencil passes"). One
+dropped). The best centre of the model is searched on a grid of 7 x 7 centres over
++-0.2 r around the tangent centre, then by a Nelder-Mead simplex from the best of them
+(:func:`_simplex`: first sides r/60, ended below 0.0004 r or after 60 evaluations). Sessions
+22-60 refined on grids of 7 x 7 over +-r/20 and 5 x 5 over +-r/80, +-r/320 and +-r/1280
+(:func:`conformill.verify.rest.rest_material`'s shape): on igea's steep walls the simplex
+takes 20 % less time with half the evaluations, and against a much finer grid search its
+rest is higher on 2.6 % of the samples where the grids' was on 35 % (session 60). One
 true drop at the model's best centre, with the model's height as floor, tells whether a
 triangle of the part rises above the model there; if so it joins the working set and the
-model is searched again (from the best centre, without the coarse grid), else the centre
+model is searched again (from the best centre, by the simplex alone), else the centre
 is on ``D`` and its value is exact. Since ``D_W <= D`` point by point, a lower ball is not
-missed for want of a triangle, only for want of grid resolution, as in the full search. A
-sample whose model search already ends above 1.05 h is given up (no pass for it): the
-model only rises as triangles join, so its minimum over the same grids only rises too; a
-better ball off those grids can be missed there, as anywhere in a grid search. A sample
+missed for want of a triangle, only for want of the search's resolution, as in the full
+search. A sample whose model search already ends above 1.05 h is given up (no pass for it):
+the model only rises as triangles join; a better ball the local search does not reach can
+be missed there, as anywhere in such a search. A sample
 under an overhang is not searched at all (:func:`_roofed`: one triangle above its normal up
 to the give-up distance proves that no ball from above gets that close; session 37, 20863
 of igea's 35249 given-up steep-wall samples). On igea (r = 4, h = 0.01) the working set settles after one
@@ -100,11 +108,16 @@ __all__ = ["SEARCHES", "LeftToCut", "PencilChains", "PencilFound", "PencilResult
 
 log = logging.getLogger(__name__)
 
-#: Half-widths (units of r) of the search grids: the coarse one around the tangent
-#: centre, then the refining ones around the best centre so far.
-_SPANS = (0.2, 0.05, 0.0125, 0.003125, 0.00078125)
-#: Size of each search grid (points per side), one per span.
-_GRIDS = (7, 7, 5, 5, 5)
+#: The model search's coarse grid around the tangent centre: its half-width (units of r)
+#: and its points per side.
+_COARSE_SPAN = 0.2
+_COARSE_GRID = 7
+#: Then a Nelder-Mead simplex from the best centre so far: its first side (units of r),
+#: the size at which it ends (units of r: about the last refining grid's step of sessions
+#: 22-59) and the most evaluations it makes.
+_SIMPLEX_SIDE = 1.0 / 60.0
+_SIMPLEX_END = 0.0004
+_SIMPLEX_EVALS = 60
 #: Most triangles in a sample's working set, and most rounds of the search.
 _MAX_W = 32
 _MAX_ROUNDS = 24
@@ -208,40 +221,113 @@ def _roofed(px, py, pz, nx, ny, nz, g, T, B, gx0, gy0, cell, ncx, ncy, cstart, c
     return False
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _model_gap(px, py, pz, nx, ny, nz, x, y, r, r2, T, W, nw):
+    """``(rest, height)`` of the model's ball centred over ``(x, y)``: :func:`_gap` from ``p``."""
+    z = _set_drop(x, y, r, r2, T, W, nw)
+    return _gap(px, py, pz, nx, ny, nz, x, y, z, r2), z
+
+
 @njit(cache=True, nogil=True)
-def _model_search(px, py, pz, nx, ny, nz, sx, sy, r, r2, T, W, nw, spans, grids):
-    """Best centre of the model on grids of ``grids[i] x grids[i]`` over ``spans[i]`` around the best so far."""
+def _simplex(px, py, pz, nx, ny, nz, x0, y0, g0, z0, side, end, evals, r, r2, T, W, nw):
+    """Nelder-Mead on the model's rest from ``(x0, y0)`` (rest ``g0``, height ``z0``): a
+    triangle with sides ``side`` along x and y, reflected, expanded, contracted or shrunk
+    (coefficients 1, 2, 1/2, 1/2) until it is smaller than ``end``, the rest is 0 or
+    ``evals`` more evaluations are made. Returns the best vertex ``(x, y, z, rest)``."""
+    X = np.empty(3)
+    Y = np.empty(3)
+    G = np.empty(3)
+    Z = np.empty(3)
+    X[0], Y[0], G[0], Z[0] = x0, y0, g0, z0
+    X[1], Y[1] = x0 + side, y0
+    X[2], Y[2] = x0, y0 + side
+    for i in range(1, 3):
+        G[i], Z[i] = _model_gap(px, py, pz, nx, ny, nz, X[i], Y[i], r, r2, T, W, nw)
+    n = 2
+    while n < evals:
+        for a in range(2):  # sort the vertices by rest (the first one best; ties keep their order)
+            for b in range(2 - a):
+                if G[b + 1] < G[b]:
+                    G[b], G[b + 1] = G[b + 1], G[b]
+                    X[b], X[b + 1] = X[b + 1], X[b]
+                    Y[b], Y[b + 1] = Y[b + 1], Y[b]
+                    Z[b], Z[b + 1] = Z[b + 1], Z[b]
+        size = max(math.hypot(X[1] - X[0], Y[1] - Y[0]), math.hypot(X[2] - X[0], Y[2] - Y[0]))
+        if size < end or G[0] <= 0.0:
+            break
+        cx = 0.5 * (X[0] + X[1])
+        cy = 0.5 * (Y[0] + Y[1])
+        xr = 2.0 * cx - X[2]
+        yr = 2.0 * cy - Y[2]
+        gr, zr = _model_gap(px, py, pz, nx, ny, nz, xr, yr, r, r2, T, W, nw)
+        n += 1
+        if gr < G[0]:
+            xe = 3.0 * cx - 2.0 * X[2]
+            ye = 3.0 * cy - 2.0 * Y[2]
+            ge, ze = _model_gap(px, py, pz, nx, ny, nz, xe, ye, r, r2, T, W, nw)
+            n += 1
+            if ge < gr:
+                X[2], Y[2], G[2], Z[2] = xe, ye, ge, ze
+            else:
+                X[2], Y[2], G[2], Z[2] = xr, yr, gr, zr
+        elif gr < G[1]:
+            X[2], Y[2], G[2], Z[2] = xr, yr, gr, zr
+        else:
+            # contract towards the reflection (when it beats the worst) or the worst
+            tx = xr if gr < G[2] else X[2]
+            ty = yr if gr < G[2] else Y[2]
+            xc = cx + 0.5 * (tx - cx)
+            yc = cy + 0.5 * (ty - cy)
+            gc, zc = _model_gap(px, py, pz, nx, ny, nz, xc, yc, r, r2, T, W, nw)
+            n += 1
+            if gc < min(gr, G[2]):
+                X[2], Y[2], G[2], Z[2] = xc, yc, gc, zc
+            else:  # shrink towards the best vertex
+                for i in range(1, 3):
+                    X[i] = X[0] + 0.5 * (X[i] - X[0])
+                    Y[i] = Y[0] + 0.5 * (Y[i] - Y[0])
+                    G[i], Z[i] = _model_gap(px, py, pz, nx, ny, nz, X[i], Y[i], r, r2, T, W, nw)
+                n += 2
+    k = 0
+    for i in range(1, 3):
+        if G[i] < G[k]:
+            k = i
+    return X[k], Y[k], Z[k], G[k]
+
+
+@njit(cache=True, nogil=True)
+def _model_search(px, py, pz, nx, ny, nz, sx, sy, r, r2, T, W, nw, coarse):
+    """Best centre of the model from ``(sx, sy)``: with ``coarse``, first on a grid of
+    :data:`_COARSE_GRID` points per side over +-:data:`_COARSE_SPAN` r around it; then a
+    Nelder-Mead simplex (:func:`_simplex`) from the best centre so far."""
     bx = sx
     by = sy
-    bz = _set_drop(bx, by, r, r2, T, W, nw)
-    bg = _gap(px, py, pz, nx, ny, nz, bx, by, bz, r2)
-    for li in range(len(spans)):
-        s = spans[li]
-        G = grids[li]
-        mid = (G - 1) // 2 if G % 2 == 1 else -1  # the grid's centre is the best so far: known
-        cx = bx
-        cy = by
+    bg, bz = _model_gap(px, py, pz, nx, ny, nz, bx, by, r, r2, T, W, nw)
+    if coarse:
+        s = _COARSE_SPAN * r
+        G = _COARSE_GRID
+        mid = (G - 1) // 2  # the grid's centre is the start: known
         for i in range(G):
-            x = cx + s * (-1.0 + 2.0 * i / (G - 1))
+            x = sx + s * (-1.0 + 2.0 * i / (G - 1))
             for j in range(G):
                 if i == mid and j == mid:
                     continue
-                y = cy + s * (-1.0 + 2.0 * j / (G - 1))
-                z = _set_drop(x, y, r, r2, T, W, nw)
-                g = _gap(px, py, pz, nx, ny, nz, x, y, z, r2)
+                y = sy + s * (-1.0 + 2.0 * j / (G - 1))
+                g, z = _model_gap(px, py, pz, nx, ny, nz, x, y, r, r2, T, W, nw)
                 if g < bg:
                     bg = g
                     bx = x
                     by = y
                     bz = z
-        if bg <= 0.0:
-            break
-    return bx, by, bz, bg
+    if bg <= 0.0:
+        return bx, by, bz, bg
+    return _simplex(px, py, pz, nx, ny, nz, bx, by, bg, bz, _SIMPLEX_SIDE * r, _SIMPLEX_END * r, _SIMPLEX_EVALS,
+                    r, r2, T, W, nw)
 
 
 @njit(cache=True, nogil=True, parallel=True)
 def _best_many(P, N, face, r, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czmax, EB, CP, maxwin,
-               spans, grids, low, give_up, roof, blocks):
+               low, give_up, roof, blocks):
     """Per sample: best centre (x, y, z), its rest, and how the search ended.
 
     ``state``: 0 the tangent ball leaves at most ``low`` (no search), 1 searched (exact
@@ -288,10 +374,9 @@ def _best_many(P, N, face, r, T, B, gx0, gy0, cell, ncx, ncy, cstart, ctri, czma
                 it = 0
                 while it < _MAX_ROUNDS:
                     it += 1
-                    if it == 1:
-                        x, y, z, g = _model_search(px, py, pz, nx, ny, nz, tx, ty, r, r2, T, W, nw, spans, grids)
-                    else:
-                        x, y, z, g = _model_search(px, py, pz, nx, ny, nz, x, y, r, r2, T, W, nw, spans[1:], grids[1:])
+                    # from the tangent centre with the coarse grid, later rounds from the best
+                    # centre by the simplex alone (one flag, not two literals: one compiled version)
+                    x, y, z, g = _model_search(px, py, pz, nx, ny, nz, x, y, r, r2, T, W, nw, it == 1)
                     if g > give_up:  # the model only rises as triangles join: so does the truth
                         st = 2
                         break
@@ -362,10 +447,8 @@ def best_centres(cutter, P, N, faces, low: float = 0.0, give_up: float = np.inf,
     # range, and the work gathers where the part is tight (a fixed seed: the rows do not
     # depend on the order anyway)
     blocks = np.random.default_rng(0).permutation((len(P) + _CHUNK - 1) // _CHUNK)
-    out, state = _best_many(P, N, tri, cutter.radius, *cutter._kernel_args(),
-                            np.asarray(_SPANS, dtype=np.float64) * cutter.radius, np.asarray(_GRIDS, dtype=np.int64),
-                            float(low), float(give_up), bool(roof and math.isfinite(give_up) and give_up > low),
-                            blocks)
+    out, state = _best_many(P, N, tri, cutter.radius, *cutter._kernel_args(), float(low), float(give_up),
+                            bool(roof and math.isfinite(give_up) and give_up > low), blocks)
     return out[:, :3], out[:, 3], state
 
 
@@ -694,7 +777,11 @@ class PencilResult:
         ``thinned``, ``chains``, ``passes``, ``cl_points``, ``feed_mm`` (cut length of the
         passes, links included), ``given_up``, ``roofed`` (a triangle above the sample: not
         searched, :func:`best_centres`), ``rounds_used_up`` (no pass for them),
-        ``settled_points``, ``density_per_mm2`` (as used), ``low``, ``high``.
+        ``settled_points``, ``density_per_mm2`` (as used), ``low``, ``high``. The fold
+        search: ``centres`` are its fold points (shadow deeper than ``low h``), with
+        ``grid_points``, ``fold_points``, ``steep_samples`` and ``steep_centres``
+        (:func:`steep_centres`); filtered by the pattern's rest (``Job.pencil_left``) also
+        ``left_h``, ``fold_points_cut`` and ``steep_centres_cut``.
     """
 
     passes: list
@@ -802,8 +889,9 @@ class PencilFound:
     probes : (k, p, 3) float64
         For each centre, points of the part where the pattern's rest tells whether its pass
         is needed (``Job.pencil_left``): a fold point's shadow at a quarter, half and three
-        quarters of the way between its contacts. NaN rows: always cut (the steep centres,
-        and every centre of the per-sample search).
+        quarters of the way between its contacts; a steep centre's sample, in each slot.
+        NaN rows: always cut (the centres of a search without probes, and every centre of
+        the per-sample search).
     spacing : float
         The search's spacing (mm): the thinning and chaining lengths scale with it.
     stats : dict
@@ -864,7 +952,9 @@ def pencil_search(cutter, V, F, h: float, *, search: str = "samples", density: f
                   probes: bool = True, drawn: SurfaceDraw | None = None) -> PencilFound | None:
     """The search of :func:`pencil_passes`: the centres, not yet chained (parameters and
     ``cancelled`` as for :func:`pencil_chains`; ``probes=False``: the fold points' shadow
-    probes are not read, all NaN, as when they will not be filtered; ``drawn``: samples
+    probes are not read and the steep centres have none, all NaN, as when they will not be
+    filtered; with probes the steep centres are those :func:`steep_centres` gives for a
+    filter, more than without; ``drawn``: samples
     already drawn over the part, used where they are the draw the search would make, the
     same density and seed: the fill's, :func:`conformill.fill.fill_samples`).
 
@@ -893,14 +983,17 @@ def pencil_search(cutter, V, F, h: float, *, search: str = "samples", density: f
         say(0.5)
         if stop():
             return None
-        n_steep, steep = steep_centres(cutter, V, F, h, min(density, _MAX_SAMPLES / area), low, high, seed, areas,
-                                       drawn=drawn)
+        n_steep, steep, steep_at = steep_centres(cutter, V, F, h, min(density, _MAX_SAMPLES / area), low, high, seed,
+                                                 areas, drawn=drawn, probed=probes)
         stats = {"search": "folds", **fp.stats, "fold_points": int(len(fp.centres)), "centres": int(kept.sum()),
                  "steep_samples": n_steep, "steep_centres": int(len(steep)),
                  "density_per_mm2": float(density), "low": float(low), "high": float(high)}
         shadows = shadow_probes(cutter, fp.contact_a[kept], fp.contact_b[kept], _SHADOW_AT) if probes \
             else np.full((int(kept.sum()), len(_SHADOW_AT), 3), np.nan)
-        shadows = np.concatenate([shadows, np.full((len(steep), len(_SHADOW_AT), 3), np.nan)])
+        # a steep centre's probe is its sample (the same point in each of the probe slots)
+        at = np.repeat(steep_at[:, None, :], len(_SHADOW_AT), axis=1) if probes \
+            else np.full((len(steep), len(_SHADOW_AT), 3), np.nan)
+        shadows = np.concatenate([shadows, at])
         say(0.8)
         if stop():
             return None
@@ -990,17 +1083,35 @@ def fold_centres(cutter, spacing: float, h: float, low: float = 0.15):
 
 
 def steep_centres(cutter, V, F, h: float, density: float, low: float = 0.15, high: float = 1.0, seed: int = 0,
-                  areas=None, drawn: SurfaceDraw | None = None):
+                  areas=None, drawn: SurfaceDraw | None = None, probed: bool = False):
     """The fold search's second step: on walls steeper than 78 deg a fold running down the
     wall projects to a short XY segment that few grid edges cross, so there the samples
-    (``density`` per mm^2) are searched one by one. Returns the number of such samples and
-    the centres ``(k, 3)`` whose rest lies in ``(low * h, high * h]``. ``drawn``: the
-    samples over the whole part, whose steep rows are these samples when it has this
-    density and seed (:meth:`SurfaceDraw.rows`)."""
+    (``density`` per mm^2) are searched one by one. ``drawn``: the samples over the whole
+    part, whose steep rows are these samples when it has this density and seed
+    (:meth:`SurfaceDraw.rows`).
+
+    Without ``probed`` the centres are those whose rest lies in ``(low * h, high * h]``.
+    With it (the pattern's rest will be read at each centre's sample, ``Job.pencil_left``)
+    they are those of every sample whose tangent ball leaves more than ``low * h`` and whose
+    best ball leaves at most ``high * h``: where a ball off the tangent one reaches the
+    sample within ``low * h``, neither the fill's balls (:mod:`conformill.fill`) nor the
+    pattern's need reach it, and only the pattern's rest tells whether a pass is needed
+    (session 61, docs/issue5.md).
+
+    Returns
+    -------
+    n : int
+        The steep samples.
+    centres : (k, 3) float64
+    samples : (k, 3) float64
+        The sample of each centre.
+    """
     P, N, faces = _drawn_or_new(drawn, V, F, density, seed, areas, below_nz=_STEEP_NZ)
     C, rest, state = best_centres(cutter, P, N, faces, low=low * h, give_up=max(_GIVE_UP, high) * h)
-    useful = (state == 1) & (rest > low * h) & (rest <= high * h) & np.isfinite(C[:, 2])
-    return int(len(P)), C[useful]
+    useful = (state == 1) & (rest <= high * h) & np.isfinite(C[:, 2])
+    if not probed:
+        useful &= rest > low * h
+    return int(len(P)), C[useful], P[useful]
 
 
 def chains_of(cutter, found: PencilFound, min_chain: int = 1, settle_tol: float = 0.0, keep=None) -> PencilChains:

@@ -881,8 +881,11 @@ def _plan_once(mesh: Mesh, job: Job, progress=None) -> PlanResult:
                         rest = [passes[len(early) - 1][len(early[-1]) - 1:]] if early else []
                         left.add(rest + passes[len(early):])
                         keep = left.keep()
+                    cut = keep & found.probed
+                    n_fold = found.stats["centres"]  # the fold points, then the steep centres
                     found = replace(found, stats={**found.stats, "left_h": float(job.pencil_left),
-                                                  "fold_points_cut": int(np.count_nonzero(keep & found.probed))})
+                                                  "fold_points_cut": int(np.count_nonzero(cut[:n_fold])),
+                                                  "steep_centres_cut": int(np.count_nonzero(cut[n_fold:]))})
                     fold_grid = found.grid  # the fill stage's balls, when it runs
                     found = chains_of(cutter, found, 1, job.settle * h, keep)
                     pencil = link_chains(cutter, found, e, link_max, start)

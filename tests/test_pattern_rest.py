@@ -137,6 +137,30 @@ def test_moves_handed_over_in_parts_give_the_same_answers(parts):
     np.testing.assert_array_equal(rows.uncut(), want)
 
 
+@pytest.mark.parametrize("parts", [1, 4])
+def test_a_point_repeated_in_its_row_is_answered_as_one(parts):
+    # a steep centre's sample fills every slot of its row (conformill.pencil): the row is
+    # uncut exactly when the point is, whether the moves come at once or in parts, and
+    # mixed with rows of distinct points
+    rng = np.random.default_rng(7)
+    tips = [np.column_stack([rng.uniform(-8, 8, 40), rng.uniform(-6, 6, 40), rng.uniform(-1, 1, 40)])
+            for _ in range(5)]
+    A, B = centre_moves(tips, R)
+    P = np.column_stack([rng.uniform(-10, 10, 2000), rng.uniform(-8, 8, 2000), rng.uniform(-2, 6, 2000)])
+    one = uncut_beyond(P, A, B, R, 0.05)
+    assert 0 < one.sum() < len(P)
+    Q = np.repeat(P[:, None], 3, axis=1)
+    Q[1::2, 2] = P[::-1][1::2]  # every other row ends with another point
+    d = _brute(Q.reshape(-1, 3), A, B).reshape(-1, 3)
+    want = (d > R + 0.05).any(axis=1)
+    np.testing.assert_array_equal(want[::2], one[::2])
+    rows = pr.UncutRows(Q, R, 0.05)
+    cuts = np.linspace(0, len(A), parts + 1).astype(int)
+    for a, b in zip(cuts[:-1], cuts[1:]):
+        rows.add(A[a:b], B[a:b])
+    np.testing.assert_array_equal(rows.uncut(), want)
+
+
 def test_rows_before_any_moves_are_uncut():
     rows = pr.UncutRows(np.zeros((4, 2, 3)), R, 0.01)
     np.testing.assert_array_equal(rows.uncut(), [True] * 4)

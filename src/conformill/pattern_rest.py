@@ -169,8 +169,8 @@ def _first_beyond(Q, H, first, reach, A, B, x0, y0, cell, ncx, ncy, start, item,
     and theirs), or ``p`` when there is none (a point with a NaN counts as beyond). The
     row's points before ``first[q]`` are known reached, and the point ``first[q]`` (when
     below ``p``) known beyond the earlier moves, so it is tested against the new ones
-    only; the row's points after the first beyond are not read. ``H (n, p, 2)``: each
-    point's hint (:func:`_reached`)."""
+    only; the row's points after the first beyond are not read, nor a point equal to the
+    one before it. ``H (n, p, 2)``: each point's hint (:func:`_reached`)."""
     n, p = Q.shape[0], Q.shape[1]
     out = np.empty(n, dtype=np.int64)
     for q in prange(n):
@@ -180,6 +180,8 @@ def _first_beyond(Q, H, first, reach, A, B, x0, y0, cell, ncx, ncy, start, item,
             if not (qx == qx and qy == qy and qz == qz):
                 out[q] = s
                 break
+            if s > 0 and qx == Q[q, s - 1, 0] and qy == Q[q, s - 1, 1] and qz == Q[q, s - 1, 2]:
+                continue  # the point before, reached (a steep centre's sample fills every slot)
             hx, hy = H[q, s, 0], H[q, s, 1]
             if _reached(qx, qy, qz, hx, hy, A, B, reach, x0, y0, cell, ncx, ncy, start, item, zlo, zhi):
                 continue

@@ -152,9 +152,11 @@ class Job:
         With the fold search: cut the pencil only through the fold points where the
         pattern's passes leave more than this many ``h`` in the fold's shadow, by the
         planner's estimate (:func:`conformill.pencil.where_left`,
-        :mod:`conformill.pattern_rest`); the steep walls' centres are all kept. None
-        (default): every fold point. Session 31 measured 0.5 on the scans (docs/issue5.md,
-        "Pencil passes").
+        :mod:`conformill.pattern_rest`), and through the steep walls' centres where they
+        leave more than that at the centre's sample (every searched steep sample whose best
+        ball leaves at most ``h`` then gives a centre: :func:`conformill.pencil.steep_centres`,
+        session 61). None (default): every fold point and the steep centres whose rest lies
+        in the band. Session 31 measured 0.5 on the scans (docs/issue5.md, "Pencil passes").
     hop_lift : float
         Hop over the runs of a path whose CC points the drop-cutter lifts more than this
         (mm) above their planned contact, where the hop (rapids clear of the part by 1 mm,

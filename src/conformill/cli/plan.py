@@ -67,10 +67,11 @@ def add_arguments(p) -> None:
                         "more feed)")
     p.add_argument("--pencil-left", type=float, default=None, metavar="F",
                    help="with --pencil-search folds: cut the pencil only through the fold points where the "
-                        "pattern's passes leave more than F H in the fold's shadow (estimated from the passes; "
-                        "the steep walls' centres are all kept): at 0.5, 0-7 %% less feed on the eleven meshes "
-                        "measured, the verified scallop within 0.005 H but on one relief (+0.013 H, failing either "
-                        "way). Default: every fold point (0.5 with --scan)")
+                        "pattern's passes leave more than F H in the fold's shadow, and the steep walls' centres "
+                        "where they leave more than F H at the centre's sample (estimated from the passes): at 0.5, "
+                        "0-7 %% less feed on the eleven meshes measured, the verified scallop within 0.005 H but on "
+                        "one relief (+0.013 H, failing either way; session 31, before the steep centres were "
+                        "probed). Default: every fold point (0.5 with --scan)")
     p.add_argument("--fill", type=_fill, default=None, metavar="T|off",
                    help="after the pattern (and the pencil), fill passes through the balls that reach the surface "
                         "samples (30 per mm^2) the passes left more than T H, by the planner's estimate; a sample "

@@ -25,6 +25,17 @@ def _brute(Q, A, B):
     return np.array(out)
 
 
+def _scattered(seed, passes, per_pass, n):
+    """Centre moves ``A, B`` of ``passes`` random tip passes of ``per_pass`` points over
+    16 x 12 mm, and ``n`` random points around them (seeded)."""
+    rng = np.random.default_rng(seed)
+    tips = [np.column_stack([rng.uniform(-8, 8, per_pass), rng.uniform(-6, 6, per_pass),
+                             rng.uniform(-1, 1, per_pass)]) for _ in range(passes)]
+    A, B = centre_moves(tips, R)
+    P = np.column_stack([rng.uniform(-10, 10, n), rng.uniform(-8, 8, n), rng.uniform(-2, 6, n)])
+    return A, B, P
+
+
 def test_a_pass_over_a_plane_leaves_the_circle_s_rest():
     # one pass along X over the plane z = 0, tip on the plane: at lateral distance y the
     # ball leaves sqrt(y^2 + r^2) - r, the exact rest (the bound is exact on a plane)
@@ -79,11 +90,7 @@ def test_rows_nan_and_empty():
 @pytest.mark.parametrize("cap", [1, 50])
 def test_a_coarser_grid_gives_the_same_answers(monkeypatch, cap):
     # the cells grow to keep about _MAX_CELLS of them (large parts): the same answers
-    rng = np.random.default_rng(5)
-    tips = [np.column_stack([rng.uniform(-8, 8, 30), rng.uniform(-6, 6, 30), rng.uniform(-1, 1, 30)])
-            for _ in range(6)]
-    A, B = centre_moves(tips, R)
-    P = np.column_stack([rng.uniform(-10, 10, 2000), rng.uniform(-8, 8, 2000), rng.uniform(-2, 6, 2000)])
+    A, B, P = _scattered(5, 6, 30, 2000)
     want = uncut_beyond(P, A, B, R, 0.05)
     assert 0 < want.sum() < len(P)
     monkeypatch.setattr(pr, "_MAX_CELLS", cap)
@@ -142,11 +149,7 @@ def test_a_point_repeated_in_its_row_is_answered_as_one(parts):
     # a steep centre's sample fills every slot of its row (conformill.pencil): the row is
     # uncut exactly when the point is, whether the moves come at once or in parts, and
     # mixed with rows of distinct points
-    rng = np.random.default_rng(7)
-    tips = [np.column_stack([rng.uniform(-8, 8, 40), rng.uniform(-6, 6, 40), rng.uniform(-1, 1, 40)])
-            for _ in range(5)]
-    A, B = centre_moves(tips, R)
-    P = np.column_stack([rng.uniform(-10, 10, 2000), rng.uniform(-8, 8, 2000), rng.uniform(-2, 6, 2000)])
+    A, B, P = _scattered(7, 5, 40, 2000)
     one = uncut_beyond(P, A, B, R, 0.05)
     assert 0 < one.sum() < len(P)
     Q = np.repeat(P[:, None], 3, axis=1)

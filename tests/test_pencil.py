@@ -706,15 +706,7 @@ def test_plan_cuts_the_fold_pencil_where_the_pattern_left_material():
     fp, deep = pencil.fold_centres(cut, 1 / np.sqrt(30.0), h)
     probes = shadow_probes(cut, fp.contact_a[deep], fp.contact_b[deep])
     pattern = [p for p, i in zip(full.toolpath.passes, full.toolpath.pass_ids) if i >= 0]
-    A = np.vstack([p[:-1] for p in pattern]) + [0, 0, R]
-    B = np.vstack([p[1:] for p in pattern]) + [0, 0, R]
-    v = B - A
-    L2 = (v * v).sum(1)
-    dist = np.empty(probes.shape[:2])
-    for i, q in enumerate(probes.reshape(-1, 3)):
-        w = q - A
-        t = np.clip((w * v).sum(1) / np.where(L2 > 0, L2, 1.0), 0, 1)
-        dist.flat[i] = np.linalg.norm(w - t[:, None] * v, axis=1).min()
+    dist = _move_dist(probes.reshape(-1, 3), pattern).reshape(probes.shape[:2])
     cuts = {}
     for left in (0.0, 0.5, 1.0, 50.0):
         res = plan(m, Job(**{**job.__dict__, "pencil_left": left}))

@@ -20,8 +20,8 @@ steep centre is probed at its sample, and the band's lower end no longer applies
 every searched steep sample (its tangent ball leaves more than ``low h``) whose best ball
 leaves at most ``h`` gives a centre, cut where the pattern left more than the filter's
 depth at the sample. A best ball that comes within ``low h`` off the tangent one is not one
-the pattern or the fill need place (session 61: with the model search below, the lion
-relief's contour left 1.37 h without this, 1.18 h with it; docs/issue5.md). Against the
+the pattern or the fill need place (session 61: with the model search below, the shipped
+lion's contour left 1.37 h without this, 1.18 h with it; docs/issue5.md). Against the
 per-sample search on the eight scans measured, this left a lower verified scallop on
 five, the same on two and a higher one on the lion relief (which fails either way), in
 18-51 % less time, but for 1-15 points more feed (+16 % against +10 % on igea: twelve
@@ -114,7 +114,7 @@ _COARSE_SPAN = 0.2
 _COARSE_GRID = 7
 #: Then a Nelder-Mead simplex from the best centre so far: its first side (units of r),
 #: the size at which it ends (units of r: about the last refining grid's step of sessions
-#: 22-59) and the most evaluations it makes.
+#: 22-60) and the most evaluations it makes.
 _SIMPLEX_SIDE = 1.0 / 60.0
 _SIMPLEX_END = 0.0004
 _SIMPLEX_EVALS = 60

@@ -324,3 +324,38 @@ def test_the_samples_drawn_in_the_pencils_worker_are_the_fills_own():
     assert len(out[0].toolpath.passes) == len(out[1].toolpath.passes)
     for p, q in zip(out[0].toolpath.passes, out[1].toolpath.passes):
         np.testing.assert_array_equal(p, q)
+
+
+def test_samples_no_grid_ball_reaches_get_a_searched_ball(monkeypatch):
+    # a bumpy part with pits tighter than the ball: where the nearest grid ball lies beyond
+    # the give but within FILL_SEARCH_NEAR h, the pencil's model search finds a ball that
+    # reaches the sample; every ball lies on the drop surface, within the give of a sample
+    # the passes left, and the grid's balls are those of the fill without the search
+    import conformill.fill as fill
+    from conformill.mesh.synthetic import height_field
+    from conformill.pattern_rest import uncut_beyond
+    from conformill.pipeline import plan, scan_recipe
+
+    outline = np.array([[-15.0, -15.0], [15.0, -15.0], [15.0, 15.0], [-15.0, 15.0]])
+    m = height_field(outline, lambda x, y: 0.6 * np.sin(0.9 * x) * np.sin(0.8 * y) + 0.02 * x * y, 0.6,
+                     jitter=0.15, seed=2)
+    h = 0.05
+    res = plan(m, Job(pattern="zigzag", tool_radius=R, scallop=h, tolerance=E, **scan_recipe("zigzag")))
+    pattern = [p for p, i in zip(res.toolpath.passes, res.toolpath.pass_ids) if i >= 0]
+    cut = BallCutter(m.V, m.F, R)
+    drawn = fill.fill_samples(cut, m.V, m.F)
+    B, which, counts, _ = fill.fill_balls(cut, drawn, pattern, h, depth=0.7)
+    n_grid = len(B) - counts["searched_reached"]
+    assert counts["searched"] > counts["searched_reached"] > 0 and n_grid > 0
+    np.testing.assert_allclose(cut.drop(B[:, :2]), B[:, 2], atol=1e-9)
+    P = drawn.P[which]
+    assert np.all(np.linalg.norm(B - P, axis=1) - R <= fill.FILL_GIVE * h + 1e-12)
+    assert uncut_beyond(P, *centre_moves(pattern, R), R, 0.7 * h).all()
+    # the searched balls reach samples no grid ball comes within the give of
+    _, d, _ = fill._grid_balls(cut, drawn.P, drawn.N, drawn.density)
+    assert np.all(d[which[n_grid:]] > fill.FILL_GIVE * h) and np.all(d[which[:n_grid]] <= fill.FILL_GIVE * h)
+    monkeypatch.setattr(fill, "FILL_SEARCH_NEAR", fill.FILL_GIVE)
+    B0, which0, counts0, _ = fill.fill_balls(cut, drawn, pattern, h, depth=0.7)
+    assert counts0["searched"] == 0 and counts0["reached"] == counts["reached"]
+    np.testing.assert_array_equal(B0, B[:n_grid])
+    np.testing.assert_array_equal(which0, which[:n_grid])

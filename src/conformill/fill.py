@@ -15,8 +15,15 @@ and fills where they leave more than 0.7 h.
 A sample's ball. Among the balls dropped on an XY grid of the sample spacing (the nodes
 around the sample's tangent ball, 4 x 4), the one whose sphere comes nearest the sample;
 it is kept when it comes within ``give`` (0.5 h) of it. A sample no grid ball reaches that
-close lies in a pocket tighter than the ball, under an overhang or on a steep wall: rest
-that the pencil passes (``Job.pencil``) are for, not the fill. The kept balls are thinned,
+close but one comes within :data:`FILL_SEARCH_NEAR` (2 h) of, and which the passes left, is
+searched for its best ball from its tangent ball (:func:`conformill.pencil.best_centres`, the
+pencil's model search), kept when it comes within the give: the grid's window, +-0.27 mm
+around the tangent ball, misses the balls that reach a sample from farther off it (session
+61: on igea's zigzag `--scan` 281 of 10753 such samples were reached, and the three
+patterns' programs left 1.018 / 1.013 / 1.006 h instead of 1.025 / 1.026 / 1.017 h with all
+128675 unreached samples searched, at 0.9 s a plan; docs/issue5.md). A sample no ball
+reaches that close lies in a pocket tighter than the ball, under an overhang or on a steep
+wall: rest that the pencil passes (``Job.pencil``) are for, not the fill. The kept balls are thinned,
 chained, settled, linked and refined as the pencil's centres are
 (:func:`conformill.pencil.chains_of`, :func:`conformill.pencil.link_chains`).
 
@@ -40,7 +47,8 @@ from numba import njit, prange
 
 from conformill.errors import PlanningError
 
-__all__ = ["FILL_DENSITY", "FILL_GIVE", "FILL_SEED", "FillResult", "fill_passes", "fill_samples"]
+__all__ = ["FILL_DENSITY", "FILL_GIVE", "FILL_SEARCH_NEAR", "FILL_SEED", "FillResult", "fill_balls", "fill_passes",
+           "fill_samples"]
 
 log = logging.getLogger(__name__)
 
@@ -53,6 +61,11 @@ FILL_DENSITY = 30.0
 FILL_SEED = 0
 #: Grid nodes per side around a sample's tangent ball among which its ball is chosen.
 _NODES = 4
+#: A sample whose nearest grid ball lies beyond the give but within this many h, and
+#: which the passes left, is searched for a ball (:func:`conformill.pencil.best_centres`,
+#: session 61): on igea's zigzag `--scan` 10753 such samples, of which 281 are reached
+#: within the give, against 324 of all 128675 that no grid ball reaches (0.9 s to search).
+FILL_SEARCH_NEAR = 2.0
 
 
 @dataclass(frozen=True)
@@ -64,8 +77,11 @@ class FillResult:
     passes : list of (k, 3) float64
         Ball-centre passes, in cutting order.
     stats : dict
-        ``samples``, ``reached`` (samples a grid ball comes within the give of), ``balls``
-        (of those, the samples the passes left more than the depth: one ball each, before
+        ``samples``, ``reached`` (samples a grid ball comes within the give of),
+        ``searched`` (samples the passes left whose nearest grid ball lies beyond the give and
+        within :data:`FILL_SEARCH_NEAR` h), ``searched_reached`` (of those, the samples a
+        searched ball comes within the give of), ``balls`` (the samples the passes left more
+        than the depth that a grid ball or a searched one reaches: one ball each, before
         thinning), ``chains``, ``passes``, ``cl_points``, ``feed_mm``, ``density_per_mm2``,
         ``depth_h``.
     """
@@ -184,33 +200,65 @@ def fill_passes(cutter, V, F, passes, h: float, *, depth: float, tol: float, lin
     PlanningError
         ``h``, ``depth`` or ``density`` is not a positive number.
     """
-    from conformill.pattern_rest import UncutRows, centre_moves
     from conformill.pencil import PencilFound, chains_of, link_chains
 
     _check(scallop=h, fill_depth=depth, fill_density=density)
     say = progress or (lambda f: None)
-    r = cutter.radius
     drawn = fill_samples(cutter, V, F, density, seed) if samples is None else samples
-    P, N, density = drawn.P, drawn.N, drawn.density
     say(0.1)
-    # the samples a grid ball comes within give of, then those the passes left: the same
-    # balls as the other way round, with the passes' test on fewer samples
-    C, d, g = _grid_balls(cutter, P, N, density, grid)
-    near = np.flatnonzero(d <= give * h)
-    say(0.3)
-    rows = UncutRows(P[near], r, depth * h, hints=P[near, :2] + r * N[near, :2])  # the tangent balls' XY
-    rows.add(*centre_moves(passes, r))
-    keep = near[rows.uncut()]
+    B, _, counts, g = fill_balls(cutter, drawn, passes, h, depth=depth, give=give, grid=grid)
     say(0.7)
-    found = PencilFound(centres=C[keep], probes=np.full((len(keep), 1, 3), np.nan), spacing=g, stats={})
+    found = PencilFound(centres=B, probes=np.full((len(B), 1, 3), np.nan), spacing=g, stats={})
     chains = chains_of(cutter, found, 1, settle_tol)
     out = link_chains(cutter, chains, tol, link_max, start_xy)
     say(1.0)
-    stats = {"samples": int(len(P)), "reached": int(near.size), "balls": int(len(keep)),
+    stats = {"samples": int(len(drawn.P)), **counts, "balls": int(len(B)),
              "chains": int(chains.stats["chains"]), "passes": int(out.stats["passes"]),
              "cl_points": int(out.stats["cl_points"]), "feed_mm": float(out.stats["feed_mm"]),
-             "density_per_mm2": float(density), "depth_h": float(depth)}
+             "density_per_mm2": float(drawn.density), "depth_h": float(depth)}
     return FillResult(passes=out.passes, stats=stats)
+
+
+def fill_balls(cutter, drawn, passes, h: float, *, depth: float, give: float = FILL_GIVE, grid=None):
+    """The fill's balls: one per sample of ``drawn`` (a :class:`conformill.pencil.SurfaceDraw`)
+    that the tip ``passes`` left more than ``depth * h`` (by the distance bound) and that a
+    ball reaches within ``give * h``: the nearest grid ball (:func:`_grid_balls`), or, where
+    that one lies beyond the give and within :data:`FILL_SEARCH_NEAR` h, the ball the
+    pencil's model search finds from the tangent ball (:func:`conformill.pencil.best_centres`).
+
+    Returns
+    -------
+    centres : (k, 3) float64
+        The grid balls first, then the searched ones; each on the drop surface.
+    which : (k,) int64
+        Each ball's sample (row of ``drawn``).
+    counts : dict
+        ``reached`` (samples a grid ball comes within the give of), ``searched``,
+        ``searched_reached``.
+    spacing : float
+        The grid's spacing (mm).
+    """
+    from conformill.pattern_rest import UncutRows, centre_moves
+    from conformill.pencil import best_centres
+
+    r = cutter.radius
+    P, N = drawn.P, drawn.N
+    # the samples a grid ball comes within give of, then those the passes left: the same
+    # balls as the other way round, with the passes' test on fewer samples; and those a grid
+    # ball comes within FILL_SEARCH_NEAR h of, not within give: searched if left
+    C, d, g = _grid_balls(cutter, P, N, drawn.density, grid)
+    near = np.flatnonzero(d <= give * h)
+    close = np.flatnonzero((d > give * h) & (d <= FILL_SEARCH_NEAR * h))
+    both = np.concatenate([near, close])
+    rows = UncutRows(P[both], r, depth * h, hints=P[both, :2] + r * N[both, :2])  # the tangent balls' XY
+    rows.add(*centre_moves(passes, r))
+    left = rows.uncut()
+    keep = near[left[:near.size]]
+    close = close[left[near.size:]]
+    Cs, rest, state = best_centres(cutter, P[close], N[close], drawn.faces[close], low=0.0, give_up=give * h)
+    ok = (state == 1) & (rest <= give * h) & np.isfinite(Cs[:, 2])
+    counts = {"reached": int(near.size), "searched": int(close.size), "searched_reached": int(ok.sum())}
+    return np.vstack([C[keep], Cs[ok]]), np.concatenate([keep, close[ok]]), counts, g
 
 
 def fill_samples(cutter, V, F, density: float = FILL_DENSITY, seed: int = FILL_SEED):

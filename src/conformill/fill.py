@@ -19,9 +19,10 @@ close but one comes within :data:`FILL_SEARCH_NEAR` (2 h) of, and which the pass
 searched for its best ball from its tangent ball (:func:`conformill.pencil.best_centres`, the
 pencil's model search), kept when it comes within the give: the grid's window, +-0.27 mm
 around the tangent ball, misses the balls that reach a sample from farther off it (session
-61: on igea's zigzag `--scan` 281 of 10753 such samples were reached, and the three
-patterns' programs left 1.018 / 1.013 / 1.006 h instead of 1.025 / 1.026 / 1.017 h with all
-128675 unreached samples searched, at 0.9 s a plan; docs/issue5.md). A sample no ball
+61, docs/issue5.md: on igea's zigzag `--scan` 10753 such samples are searched and 281
+reached, of the 324 that a search of all 128675 unreached samples reaches in 0.9 s; the
+three patterns' programs leave 1.021 / 1.019 / 1.010 h instead of 1.025 / 1.026 / 1.017 h,
+for 0.5 % more feed). A sample no ball
 reaches that close lies in a pocket tighter than the ball, under an overhang or on a steep
 wall: rest that the pencil passes (``Job.pencil``) are for, not the fill. The kept balls are thinned,
 chained, settled, linked and refined as the pencil's centres are

@@ -328,7 +328,7 @@ def test_the_samples_drawn_in_the_pencils_worker_are_the_fills_own():
 
 def test_samples_no_grid_ball_reaches_get_a_searched_ball(monkeypatch):
     # a bumpy part with pits tighter than the ball: where the nearest grid ball lies beyond
-    # the give but within FILL_SEARCH_NEAR h, the pencil's model search finds a ball that
+    # the give but within FILL_SEARCH_NEAR h (2 h here; off by default), the pencil's model search finds a ball that
     # reaches the sample; every ball lies on the drop surface, within the give of a sample
     # the passes left, and the grid's balls are those of the fill without the search
     import conformill.fill as fill
@@ -344,6 +344,7 @@ def test_samples_no_grid_ball_reaches_get_a_searched_ball(monkeypatch):
     pattern = [p for p, i in zip(res.toolpath.passes, res.toolpath.pass_ids) if i >= 0]
     cut = BallCutter(m.V, m.F, R)
     drawn = fill.fill_samples(cut, m.V, m.F)
+    monkeypatch.setattr(fill, "FILL_SEARCH_NEAR", 2.0)
     B, which, counts, _ = fill.fill_balls(cut, drawn, pattern, h, depth=0.7)
     n_grid = len(B) - counts["searched_reached"]
     assert counts["searched"] > counts["searched_reached"] > 0 and n_grid > 0

@@ -15,14 +15,12 @@ and fills where they leave more than 0.7 h.
 A sample's ball. Among the balls dropped on an XY grid of the sample spacing (the nodes
 around the sample's tangent ball, 4 x 4), the one whose sphere comes nearest the sample;
 it is kept when it comes within ``give`` (0.5 h) of it. A sample no grid ball reaches that
-close but one comes within :data:`FILL_SEARCH_NEAR` (2 h) of, and which the passes left, is
+close but one comes within :data:`FILL_SEARCH_NEAR` h of, and which the passes left, can be
 searched for its best ball from its tangent ball (:func:`conformill.pencil.best_centres`, the
 pencil's model search), kept when it comes within the give: the grid's window, +-0.27 mm
-around the tangent ball, misses the balls that reach a sample from farther off it (session
-61, docs/issue5.md: on igea's zigzag `--scan` 10753 such samples are searched and 281
-reached, of the 324 that a search of all 128675 unreached samples reaches in 0.9 s; the
-three patterns' programs leave 1.021 / 1.019 / 1.010 h instead of 1.025 / 1.026 / 1.017 h,
-for 0.5 % more feed). A sample no ball
+around the tangent ball, misses the balls that reach a sample from farther off it. At 2 h
+it lowers every mesh's scallop a little for 0.3 s more per plan on igea, so it is off by
+default (session 61, docs/issue5.md). A sample no ball
 reaches that close lies in a pocket tighter than the ball, under an overhang or on a steep
 wall: rest that the pencil passes (``Job.pencil``) are for, not the fill. The kept balls are thinned,
 chained, settled, linked and refined as the pencil's centres are
@@ -64,9 +62,14 @@ FILL_SEED = 0
 _NODES = 4
 #: A sample whose nearest grid ball lies beyond the give but within this many h, and
 #: which the passes left, is searched for a ball (:func:`conformill.pencil.best_centres`,
-#: session 61): on igea's zigzag `--scan` 10753 such samples, of which 281 are reached
-#: within the give, against 324 of all 128675 that no grid ball reaches (0.9 s to search).
-FILL_SEARCH_NEAR = 2.0
+#: session 61). Off (the give itself: none searched) by default: at 2 h, on igea's zigzag
+#: `--scan` 10753 samples are searched and 281 reached (of the 324 that a search of all
+#: 128675 unreached samples reaches in 0.9 s), and every mesh's programs leave as little
+#: or less (igea 1.021 / 1.019 / 1.010 h against 1.025 / 1.026 / 1.017 h, the lion relief
+#: 1.093-1.129 h against 1.119-1.157 h) for 0.3-1 % more feed; but igea's plans take
+#: 0.27-0.29 s longer (4.52 / 4.97 s against 4.23 / 4.70 s, zigzag / spiral, alternating
+#: plans), against issue 5's time target (docs/issue5.md, "Session 61").
+FILL_SEARCH_NEAR = FILL_GIVE
 
 
 @dataclass(frozen=True)

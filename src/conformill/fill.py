@@ -260,7 +260,8 @@ def fill_balls(cutter, drawn, passes, h: float, *, depth: float, give: float = F
     keep = near[left[:near.size]]
     close = close[left[near.size:]]
     Cs, rest, state = best_centres(cutter, P[close], N[close], drawn.faces[close], low=0.0, give_up=give * h)
-    ok = (state == 1) & (rest <= give * h) & np.isfinite(Cs[:, 2])
+    # state 0: the tangent ball itself comes within low = 0 (its centre, on the drop surface)
+    ok = (state <= 1) & (rest <= give * h) & np.isfinite(Cs[:, 2])
     counts = {"reached": int(near.size), "searched": int(close.size), "searched_reached": int(ok.sum())}
     return np.vstack([C[keep], Cs[ok]]), np.concatenate([keep, close[ok]]), counts, g
 

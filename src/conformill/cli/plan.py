@@ -485,12 +485,12 @@ def peak_rss_mb() -> float:
 
 def _pencil_source(st: dict) -> str:
     if st.get("search") == "folds":
+        found = (f"{st['centres']} fold points ({st['grid_points']} grid points) and {st['steep_centres']} "
+                 f"steep-wall centres")
         if "left_h" not in st:
-            return (f"{st['centres']} fold points ({st['grid_points']} grid points) and {st['steep_centres']} "
-                    f"steep-wall centres")
-        return (f"{st['centres']} fold points ({st['grid_points']} grid points) and {st['steep_centres']} "
-                f"steep-wall centres, {st['fold_points_cut']} and {st['steep_centres_cut']} of them where the "
-                f"pattern left above {st['left_h']:g} H")
+            return found
+        return (f"{found}, {st['fold_points_cut']} and {st['steep_centres_cut']} of them where the pattern left above "
+                f"{st['left_h']:g} H")
     return f"{st['centres']} best ball centres ({st['samples']} samples)"
 
 

@@ -546,9 +546,11 @@ def test_background_draw_runs_before_the_search_which_uses_it(chain, search):
 
 
 def _move_dist(Q, passes):
-    """Distance from each point of ``Q`` to the ball-centre moves of tip ``passes``."""
-    A = np.vstack([p[:-1] for p in passes]) + [0, 0, R]
-    B = np.vstack([p[1:] for p in passes]) + [0, 0, R]
+    """Distance from each point of ``Q`` to the ball-centre moves of tip ``passes`` (by brute
+    force over the moves, as ``tests/test_pattern_rest.py``'s ``_brute``)."""
+    from conformill.pattern_rest import centre_moves
+
+    A, B = centre_moves(passes, R)
     v = B - A
     L2 = (v * v).sum(1)
     out = np.empty(len(Q))

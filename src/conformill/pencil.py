@@ -478,7 +478,7 @@ def surface_samples(V, F, density: float, seed: int = 0, areas=None, below_nz: f
     faces : (k,) int64
     """
     from conformill.geometry.differential import vertex_normals
-    from conformill.geometry.locate import map_normals, map_points, pick_faces
+    from conformill.geometry.locate import pick_faces
 
     V = np.asarray(V, dtype=np.float64)
     F = np.asarray(F, dtype=np.int64)
@@ -488,9 +488,6 @@ def surface_samples(V, F, density: float, seed: int = 0, areas=None, below_nz: f
     cum = np.cumsum(a)
     f = np.minimum(pick_faces(cum, rng.random(n) * cum[-1]), len(F) - 1)
     u, v = rng.random(n), rng.random(n)
-    flip = u + v > 1.0
-    u[flip], v[flip] = 1.0 - u[flip], 1.0 - v[flip]
-    w = np.column_stack([1.0 - u - v, u, v])
     vn = vertex_normals(V, F)
     if below_nz is not None:
         # a sample's normal is a unit vector's convex blend renormalised: where all three
@@ -498,17 +495,44 @@ def surface_samples(V, F, density: float, seed: int = 0, areas=None, below_nz: f
         # mapped (the same draws, so the same samples as the rows of the full output)
         maybe = ~(vn[F, 2].min(axis=1) >= below_nz + 1e-9)
         sel = np.flatnonzero(maybe[f])
-        f, w = f[sel], w[sel]
-    P = map_points(V, F, f, w)
-    N = map_normals(vn, F, f, w)  # NaN where the normals cancel: not kept
+        f, u, v = f[sel], u[sel], v[sel]
+    P, N = _sample_points(V, F, vn, f, u, v)  # N: NaN where the normals cancel (not kept)
     up = N[:, 2] > 0
     if below_nz is not None:
         up &= N[:, 2] < below_nz
     # in cell order (1 mm, row by row): consecutive samples touch the same triangles (cache);
     # a subset keeps its order in the whole (the cells are whole millimetres)
-    key = _cell_order(P) if len(P) else np.zeros(0, dtype=np.int64)
-    keep = key[up[key]]
+    keep = np.flatnonzero(up)
+    keep = keep[_cell_order(P[keep])] if len(keep) else keep
     return P[keep], N[keep], f[keep]
+
+
+@njit(cache=True, nogil=True)
+def _sample_points(V, F, vn, f, u, v):
+    """The points of faces ``f`` at ``(u, v)`` folded into the triangle (``u + v > 1``: ``1 -
+    u``, ``1 - v``), barycentric ``(1 - u - v, u, v)``, and the vertex normals interpolated
+    there, renormalised (NaN where they cancel): the arithmetic of
+    :func:`conformill.geometry.locate.map_points` and ``map_normals``, in one pass."""
+    k = f.shape[0]
+    P = np.empty((k, 3))
+    N = np.empty((k, 3))
+    for p in range(k):
+        uu, vv = u[p], v[p]
+        if uu + vv > 1.0:
+            uu, vv = 1.0 - uu, 1.0 - vv
+        w0 = 1.0 - uu - vv
+        a, b, c = F[f[p], 0], F[f[p], 1], F[f[p], 2]
+        for j in range(3):
+            P[p, j] = w0 * V[a, j] + uu * V[b, j] + vv * V[c, j]
+        n0 = w0 * vn[a, 0] + uu * vn[b, 0] + vv * vn[c, 0]
+        n1 = w0 * vn[a, 1] + uu * vn[b, 1] + vv * vn[c, 1]
+        n2 = w0 * vn[a, 2] + uu * vn[b, 2] + vv * vn[c, 2]
+        ln = math.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+        if ln > 0:
+            N[p, 0], N[p, 1], N[p, 2] = n0 / ln, n1 / ln, n2 / ln
+        else:
+            N[p, 0] = N[p, 1] = N[p, 2] = np.nan
+    return P, N
 
 
 @dataclass(frozen=True, eq=False)

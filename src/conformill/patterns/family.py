@@ -18,10 +18,10 @@ import logging
 
 import numpy as np
 from numba import njit, prange
-from scipy.ndimage import minimum_filter1d
 from scipy.spatial import cKDTree
 
 from conformill.errors import PlanningError
+from conformill.patterns.filters import running_min
 from conformill.geometry.closest import segment_d2
 from conformill.planning.steps import allowed_across, side_interval_stock
 
@@ -852,7 +852,7 @@ class Planner:
                     f = np.minimum(margin / np.maximum(r_fwd, 1e-300), 1.0)
                     fb = np.minimum(margin / np.maximum(r_bwd, 1e-300), 1.0)
                     f = np.minimum(f, np.interp(cur.tau, nxt.tau, fb))
-                    f = minimum_filter1d(f, 2 * spread + 1, mode="wrap" if closed else "nearest")
+                    f = running_min(f, spread, closed)  # scipy.ndimage.minimum_filter1d's
                 else:
                     f = np.full(len(lv), min(0.995 / ratio, 0.999))
                 T = profile(lv + (T - lv) * f)

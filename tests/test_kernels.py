@@ -5,7 +5,7 @@ where another call passes an int64, or a read-only array is compiled once more f
 such variant, and a fresh install compiles every variant before its first plan (session
 28: ``_drop_point`` three times, ``_tri_drop`` three, ``_fit_one`` three; the quick start's
 first run about 20 % longer). Plans through the pipeline's stages (three patterns; both
-pencil searches; hops; adaptive, local and paper spacing; the split fit; G-code; verify
+pencil searches, the pencil's filter and the fill; hops; adaptive, local and paper spacing; the split fit; G-code; verify
 with and without the rest search) must leave each kernel with at most one. Paths not run
 here (the ``view`` and ``param`` commands, other weights) are not checked.
 """
@@ -47,7 +47,8 @@ def _plan_every_stage(tmp):
     """Plans, G-code and verify through every stage; the kernels compiled more than once."""
     part = synthetic.v_groove(a_deg=60.0, half=12.0, step=0.5)
     for pattern, extra in (("zigzag", dict(pencil=True, pencil_search="samples", pencil_density=2.0)),
-                           ("contour", dict(pencil=True, pencil_search="folds", pencil_density=2.0, hop_lift=0.5)),
+                           ("contour", dict(pencil=True, pencil_search="folds", pencil_density=2.0, hop_lift=0.5,
+                                            pencil_left=0.5, fill=0.7)),
                            ("spiral", dict(spacing="local")),
                            ("zigzag", dict(spacing="paper", fit="split"))):
         res = plan(part, Job(pattern=pattern, tool_radius=4.0, scallop=0.05, tolerance=0.01, **extra))

@@ -279,7 +279,9 @@ def _hints(Q, hints) -> np.ndarray:
         H = np.broadcast_to(H[:, None, :], (n, p, 2))
     if H.shape != (n, p, 2):
         raise ValueError(f"hints must be ({n}, 2) or ({n}, {p}, 2) for these points, got {H.shape}")
-    return np.ascontiguousarray(H)
+    # writable too: a broadcast row (p = 1) is contiguous but read-only, and the kernel
+    # would be compiled and loaded a second time for it
+    return np.require(H, requirements=["C", "W"])
 
 
 def uncut_beyond(points, A, B, radius: float, depth: float, hints=None) -> np.ndarray:

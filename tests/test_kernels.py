@@ -5,9 +5,10 @@ where another call passes an int64, or a read-only array is compiled once more f
 such variant, and a fresh install compiles every variant before its first plan (session
 28: ``_drop_point`` three times, ``_tri_drop`` three, ``_fit_one`` three; the quick start's
 first run about 20 % longer). Plans through the pipeline's stages (three patterns; both
-pencil searches, the pencil's filter and the fill; hops; adaptive, local and paper spacing; the split fit; G-code; verify
-with and without the rest search) must leave each kernel with at most one. Paths not run
-here (the ``view`` and ``param`` commands, other weights) are not checked.
+pencil searches, the pencil's filter and the fill; hops; adaptive, local and paper spacing;
+the split fit; G-code; verify with and without the rest search) must leave each kernel with
+at most one. Paths not run here (the ``view`` and ``param`` commands, other weights) are not
+checked.
 """
 
 from __future__ import annotations

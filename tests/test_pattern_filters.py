@@ -54,6 +54,9 @@ def test_gaussian_rows_keep_a_constant_and_the_mean_on_a_circle():
 def test_bad_arguments():
     with pytest.raises(ValueError, match="half"):
         running_min(np.ones(4), -1, True)
+    with pytest.raises(ValueError, match="1-D"):
+        running_min(np.ones((2, 4)), 1, True)
+    np.testing.assert_array_equal(running_min(np.arange(3.0), 0, False), np.arange(3.0))
     with pytest.raises(ValueError, match="sigma"):
         gaussian_rows(np.ones((2, 4)), 0.0, True)
     with pytest.raises(ValueError, match="2-D"):

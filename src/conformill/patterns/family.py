@@ -21,8 +21,8 @@ from numba import njit, prange
 from scipy.spatial import cKDTree
 
 from conformill.errors import PlanningError
-from conformill.patterns.filters import running_min
 from conformill.geometry.closest import segment_d2
+from conformill.patterns.filters import running_min
 from conformill.planning.steps import allowed_across, side_interval_stock
 
 log = logging.getLogger(__name__)

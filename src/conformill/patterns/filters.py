@@ -27,9 +27,9 @@ def running_min(x, half: int, wrap: bool) -> np.ndarray:
     repeated end to end (``wrap``) or its end samples repeated (else)."""
     x = np.asarray(x, dtype=np.float64)
     half = int(half)
-    if half < 0:
-        raise ValueError(f"running_min: half must be >= 0, got {half}")
-    if x.ndim != 1 or len(x) == 0 or half == 0:
+    if half < 0 or x.ndim != 1:
+        raise ValueError(f"running_min: a 1-D array and half >= 0 are needed, got {x.shape}, {half}")
+    if len(x) == 0 or half == 0:
         return x.copy()
     xp = np.pad(x, half, mode="wrap" if wrap else "edge")
     return np.lib.stride_tricks.sliding_window_view(xp, 2 * half + 1).min(axis=1)

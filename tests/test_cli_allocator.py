@@ -17,8 +17,9 @@ import sys
 import pytest
 
 from conformill.cli import allocator as alloc
-from conformill.cli.allocator import (MMAP_THRESHOLD, MMAP_THRESHOLD_CAPPED, TOP_PAD, TRIM_THRESHOLD, _user_set,
-                                      tune_allocator)
+from conformill.cli.allocator import (MMAP_THRESHOLD, MMAP_THRESHOLD_CAPPED, PREFAULT_BLOCK, PREFAULT_MAX,
+                                      PREFAULT_PER_BYTE, TOP_PAD, TRIM_THRESHOLD, HeapPrefault, _user_set,
+                                      prefault_size, tune_allocator)
 
 _GLIBC = sys.platform.startswith("linux") and platform.libc_ver()[0] == "glibc"
 needs_glibc = pytest.mark.skipif(not _GLIBC, reason="glibc only")
@@ -157,6 +158,124 @@ def test_the_command_line_sets_up_its_process_before_main(monkeypatch):
     monkeypatch.setattr(sys, "argv", ["conformill", "plan", "part.ply"])
     cli.main_exit()
     assert calls == ["tuned", ("imports", ["plan", "part.ply"]), "main", ("exit", 0)]
+
+
+@pytest.mark.parametrize("tuned", [True, False])
+def test_the_heap_is_written_ahead_while_the_modules_import(monkeypatch, tuned):
+    import conformill.cli.main as cli
+
+    calls = []
+
+    class Ahead:
+        def __init__(self, n):
+            calls.append(("ahead", n))
+
+        def release(self):
+            calls.append("released")
+
+    monkeypatch.setattr(alloc, "tune_allocator", lambda: calls.append("tuned") or tuned)
+    monkeypatch.setattr(alloc, "prefault_size", lambda argv: 7 * len(argv))
+    monkeypatch.setattr(alloc, "HeapPrefault", Ahead)
+    monkeypatch.setattr(cli, "_import_work_modules", lambda argv: calls.append("imports"))
+    monkeypatch.setattr(cli, "main", lambda: calls.append("main") or 0)
+    monkeypatch.setattr(cli, "_exit_now", lambda code: calls.append(("exit", code)))
+    monkeypatch.setattr(sys, "argv", ["conformill", "plan", "part.ply"])
+    cli.main_exit()
+    # only on a tuned allocator (else freed blocks may go back to the system at once)
+    want = ["tuned", ("ahead", 14), "imports", "released"] if tuned else ["tuned", "imports"]
+    assert calls == want + ["main", ("exit", 0)]
+
+
+def test_the_size_written_ahead_follows_the_parts_file(tmp_path):
+    from conformill.data import sample_path
+
+    def part(name, nbytes):
+        f = tmp_path / name
+        f.write_bytes(b"\0" * nbytes)
+        return str(f)
+
+    mid = part("mid.ply", 3_000_000)
+    want = PREFAULT_PER_BYTE * 3_000_000
+    want -= want % PREFAULT_BLOCK
+    assert 0 < want < PREFAULT_MAX and want % PREFAULT_BLOCK == 0
+    assert prefault_size(["plan", mid, "--scan"]) == want
+    # options before the part, an existing output file (not a mesh) before it
+    out = part("old.nc", 9_000_000)
+    assert prefault_size(["plan", "--scan", "-o", out, "--tool-radius", "4", mid]) == want
+    assert prefault_size(["plan", part("big.STL", 50_000_000)]) == PREFAULT_MAX
+    assert prefault_size(["plan", part("tiny.obj", 1000)]) == 0  # less than a block
+    face = PREFAULT_PER_BYTE * sample_path("face").stat().st_size
+    assert prefault_size(["plan", "sample:face"]) == face - face % PREFAULT_BLOCK
+    for argv in (["plan", str(tmp_path / "absent.ply")], ["plan", "sample:nope"], ["verify", mid, out],
+                 ["plan", mid, "--help"], ["plan"], []):
+        assert prefault_size(argv) == 0, argv
+
+
+class _FakeLibc:
+    def __init__(self, refuse_at=None):
+        self.calls, self.next, self.refuse_at = [], 0, refuse_at
+
+    def malloc(self, n):
+        self.next += 1
+        self.calls.append(("malloc", n))
+        return 0 if self.next == self.refuse_at else 1000 * self.next
+
+    def memset(self, p, v, n):
+        self.calls.append(("memset", p, v, n))
+
+    def free(self, p):
+        self.calls.append(("free", p))
+
+
+def test_heap_prefault_takes_writes_and_frees_whole_blocks():
+    libc = _FakeLibc()
+    ahead = HeapPrefault(3 * PREFAULT_BLOCK + 5, libc=libc)
+    assert len(ahead.blocks) == 3
+    ahead.release()
+    ahead.release()  # harmless twice
+    B = PREFAULT_BLOCK
+    assert libc.calls == ([("malloc", B)] * 3 + [("memset", p, 0, B) for p in (1000, 2000, 3000)]
+                          + [("free", p) for p in (3000, 2000, 1000)])  # the last taken first
+    assert HeapPrefault(B - 1, libc=libc).blocks == []
+
+
+def test_heap_prefault_gives_back_what_it_took_when_refused():
+    libc = _FakeLibc(refuse_at=3)
+    ahead = HeapPrefault(4 * PREFAULT_BLOCK, libc=libc)
+    assert ahead.blocks == [] and ahead._thread is None
+    assert libc.calls == [("malloc", PREFAULT_BLOCK)] * 3 + [("free", 2000), ("free", 1000)]
+    ahead.release()
+
+
+@needs_glibc
+def test_the_blocks_written_ahead_stay_in_the_heap_for_reuse():
+    # in a child (glibc's settings are process-wide): tuned, 64 MB written ahead and freed
+    # stay in the heap as free memory (fordblks), none of it in separate mmaps (hblks)
+    code = """
+import ctypes, sys
+from conformill.cli.allocator import HeapPrefault, tune_allocator
+class Info(ctypes.Structure):
+    _fields_ = [(f, ctypes.c_size_t) for f in
+                ("arena", "ordblks", "smblks", "hblks", "hblkhd", "usmblks", "fsmblks", "uordblks", "fordblks",
+                 "keepcost")]
+libc = ctypes.CDLL(None)
+libc.mallinfo2.restype = Info
+assert tune_allocator()
+before = libc.mallinfo2()
+ahead = HeapPrefault(64 << 20)
+n = len(ahead.blocks)
+ahead.release()
+after = libc.mallinfo2()
+print(n, after.hblks - before.hblks, (after.fordblks - before.fordblks) >> 20)
+"""
+    e = {k: v for k, v in os.environ.items()
+         if not k.startswith("MALLOC_") and k not in ("GLIBC_TUNABLES", "CONFORMILL_MALLOC", "LD_PRELOAD")}
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, env=e)
+    if p.returncode != 0 and "mallinfo2" in p.stderr:
+        pytest.skip("glibc without mallinfo2 (before 2.33)")
+    assert p.returncode == 0, p.stderr
+    n, hblks, free_mb = (int(v) for v in p.stdout.split())
+    assert n == (64 << 20) // PREFAULT_BLOCK and hblks <= 0 and free_mb >= 64  # (another chunk may be unmapped)
 
 
 def test_main_itself_changes_neither(monkeypatch, capsys):

@@ -213,14 +213,19 @@ def main_exit() -> None:  # console-script entry (and ``python -m conformill``)
     ``sys.exit`` ends it instead.
 
     The process is the command's, so before :func:`main` the C allocator is set to reuse
-    freed memory (:func:`conformill.cli.allocator.tune_allocator`) and the command's own
-    heavy modules are imported with Python's cyclic garbage collector off
+    freed memory (:func:`conformill.cli.allocator.tune_allocator`), part of its heap is
+    written ahead by a helper thread (:class:`conformill.cli.allocator.HeapPrefault`) while
+    the command's own heavy modules are imported with Python's cyclic garbage collector off
     (:func:`_import_work_modules`).
     """
-    from conformill.cli.allocator import tune_allocator
+    from conformill.cli.allocator import HeapPrefault, prefault_size, tune_allocator
 
-    tune_allocator()  # reuse freed memory (cli/allocator.py)
+    ahead = None
+    if tune_allocator():  # reuse freed memory (cli/allocator.py), written ahead while importing
+        ahead = HeapPrefault(prefault_size(sys.argv[1:]))
     _import_work_modules(sys.argv[1:])
+    if ahead is not None:
+        ahead.release()
     code = main()
     _exit_now(code)
 

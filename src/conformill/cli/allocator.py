@@ -38,9 +38,10 @@ inside the plan. In ``plan`` the main thread takes about 60 % of the command's p
 (igea contour ``--scan``: 83k of 139k, ``perf record -e page-faults``). The size follows
 the part's file (:func:`prefault_size`): the file says little about the plan's memory, so a
 guess too large costs memory (the blocks stay in the process), one too small costs time;
-the programs are the same bytes either way. Session 62, igea contour ``--scan``, eight
-alternating pairs of commands with 384 MB: 6.57-7.03 s against 6.87-7.38 s (7 quicker,
-1 level), the peak 80 MB higher.
+the programs are the same bytes either way. Session 62, alternating commands: igea contour
+``--scan`` (368 MB ahead) 6.48-6.77 s against 6.70-6.84 s (5 of 5 pairs quicker), the peak
+65 MB higher; the 620k zigzag (512 MB) 8.92-9.24 s against 9.05-9.56 s (2 of 3), the peak
+the same.
 """
 
 from __future__ import annotations

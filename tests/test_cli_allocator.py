@@ -28,16 +28,19 @@ needs_glibc = pytest.mark.skipif(not _GLIBC, reason="glibc only")
 #: took and how many chunks glibc holds as separate mmaps (mallinfo2's ``hblks``: what the
 #: mmap threshold decides, whatever the kernel's huge pages do to page faults), then free
 #: it, take a block of argv[3] bytes and print hblks again.
-_CHILD = """
+#: A child's start: ctypes, glibc and its ``mallinfo2`` (the heap's figures).
+_MALLINFO = """
 import ctypes, sys
-from conformill.cli.allocator import tune_allocator
-ok = tune_allocator() if sys.argv[1] == "tune" else None
 class Info(ctypes.Structure):
     _fields_ = [(f, ctypes.c_size_t) for f in
                 ("arena", "ordblks", "smblks", "hblks", "hblkhd", "usmblks", "fsmblks", "uordblks", "fordblks",
                  "keepcost")]
 libc = ctypes.CDLL(None)
 libc.mallinfo2.restype = Info
+"""
+_CHILD = _MALLINFO + """
+from conformill.cli.allocator import tune_allocator
+ok = tune_allocator() if sys.argv[1] == "tune" else None
 libc.malloc.restype = ctypes.c_void_p
 libc.malloc.argtypes = [ctypes.c_size_t]
 libc.free.argtypes = [ctypes.c_void_p]
@@ -52,16 +55,22 @@ print(" ".join(out))
 """
 
 
-def _child(mode: str, first: int, second: int = 0, **env) -> list:
+def _run_child(code: str, *args, **env) -> list:
+    """Run ``code`` in a child without the user's malloc settings (and with ``env``); its
+    printed words (skips where glibc has no ``mallinfo2``)."""
     e = {k: v for k, v in os.environ.items()
          if not k.startswith("MALLOC_") and k not in ("GLIBC_TUNABLES", "CONFORMILL_MALLOC", "LD_PRELOAD")}
     e.update(env)
-    p = subprocess.run([sys.executable, "-c", _CHILD, mode, str(first), str(second or first)], capture_output=True,
-                       text=True, timeout=120, env=e)
+    p = subprocess.run([sys.executable, "-c", code, *map(str, args)], capture_output=True, text=True, timeout=120,
+                       env=e)
     if p.returncode != 0 and "mallinfo2" in p.stderr:
         pytest.skip("glibc without mallinfo2 (before 2.33)")
     assert p.returncode == 0, p.stderr
     return p.stdout.split()
+
+
+def _child(mode: str, first: int, second: int = 0, **env) -> list:
+    return _run_child(_CHILD, mode, first, second or first, **env)
 
 
 MB = 1024 * 1024
@@ -251,15 +260,8 @@ def test_heap_prefault_gives_back_what_it_took_when_refused():
 def test_the_blocks_written_ahead_stay_in_the_heap_for_reuse():
     # in a child (glibc's settings are process-wide): tuned, 64 MB written ahead and freed
     # stay in the heap as free memory (fordblks), none of it in separate mmaps (hblks)
-    code = """
-import ctypes, sys
+    code = _MALLINFO + """
 from conformill.cli.allocator import HeapPrefault, tune_allocator
-class Info(ctypes.Structure):
-    _fields_ = [(f, ctypes.c_size_t) for f in
-                ("arena", "ordblks", "smblks", "hblks", "hblkhd", "usmblks", "fsmblks", "uordblks", "fordblks",
-                 "keepcost")]
-libc = ctypes.CDLL(None)
-libc.mallinfo2.restype = Info
 assert tune_allocator()
 before = libc.mallinfo2()
 ahead = HeapPrefault(64 << 20)
@@ -268,13 +270,7 @@ ahead.release()
 after = libc.mallinfo2()
 print(n, after.hblks - before.hblks, (after.fordblks - before.fordblks) >> 20)
 """
-    e = {k: v for k, v in os.environ.items()
-         if not k.startswith("MALLOC_") and k not in ("GLIBC_TUNABLES", "CONFORMILL_MALLOC", "LD_PRELOAD")}
-    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, env=e)
-    if p.returncode != 0 and "mallinfo2" in p.stderr:
-        pytest.skip("glibc without mallinfo2 (before 2.33)")
-    assert p.returncode == 0, p.stderr
-    n, hblks, free_mb = (int(v) for v in p.stdout.split())
+    n, hblks, free_mb = (int(v) for v in _run_child(code))
     assert n == (64 << 20) // PREFAULT_BLOCK and hblks <= 0 and free_mb >= 64  # (another chunk may be unmapped)
 
 

@@ -92,16 +92,9 @@ def _glibc_mallopt():
     """glibc's ``mallopt(param, value) -> int`` through ctypes, or None (not glibc, no
     ctypes)."""
     try:
-        import ctypes
-
-        libc = ctypes.CDLL(None)
-        libc.gnu_get_libc_version  # glibc's own: musl also has a mallopt, which does nothing
-        mallopt = libc.mallopt
-        mallopt.argtypes = [ctypes.c_int, ctypes.c_int]
-        mallopt.restype = ctypes.c_int
+        return _glibc().mallopt
     except Exception:  # noqa: BLE001 - no ctypes, no such library or symbol: leave it
         return None
-    return mallopt
 
 
 def tune_allocator(environ=None, mallopt=None) -> bool:
@@ -219,11 +212,14 @@ class HeapPrefault:
 
 
 def _glibc():
-    """glibc's ``malloc``, ``free`` and ``memset`` through ctypes (raises where absent)."""
+    """glibc through ctypes, its ``mallopt``, ``malloc``, ``free`` and ``memset`` typed
+    (raises where ctypes, the library or one of them is absent)."""
     import ctypes
 
     libc = ctypes.CDLL(None)
-    libc.gnu_get_libc_version  # glibc's own
+    libc.gnu_get_libc_version  # glibc's own: musl also has a mallopt, which does nothing
+    libc.mallopt.argtypes = [ctypes.c_int, ctypes.c_int]
+    libc.mallopt.restype = ctypes.c_int
     libc.malloc.argtypes = [ctypes.c_size_t]
     libc.malloc.restype = ctypes.c_void_p
     libc.free.argtypes = [ctypes.c_void_p]

@@ -293,11 +293,14 @@ def test_a_huge_part_gets_a_lower_density_with_a_warning(flat, monkeypatch, capl
     assert "per mm^2" in caplog.text
 
 
-def test_the_samples_drawn_in_the_pencils_worker_are_the_fills_own():
+def test_the_samples_drawn_in_the_pencils_worker_are_the_fills_own(monkeypatch):
     # on two threads the pipeline draws the fill's samples in the pencil's worker and hands
-    # them over; on one thread fill_passes draws them itself (FILL_DENSITY, FILL_SEED): the
-    # same samples, so the same fill and the same program
+    # them over, and tests them against the pattern's passes while the cutter works; on one
+    # thread fill_passes draws and tests them itself (FILL_DENSITY, FILL_SEED): the same
+    # samples, so the same fill and the same program
     import numba
+
+    import conformill.fill as fill
 
     from conformill.mesh.synthetic import sphere_cap
     from conformill.passes import threads_can_overlap
@@ -309,12 +312,18 @@ def test_the_samples_drawn_in_the_pencils_worker_are_the_fills_own():
     n = numba.get_num_threads()
     if n < 2:
         pytest.skip("one numba thread: the worker never runs")
-    out = []
+    out, fed = [], []
+    add_grid = fill.FillRows.add_grid
+    monkeypatch.setattr(fill.FillRows, "add_grid", lambda self, g: (fed.append(len(g.A)), add_grid(self, g)))
     try:
         for t in (n, 1):
             numba.set_num_threads(t)
             assert threads_can_overlap() == (t > 1)
             out.append(_plan_once(m, job))
+            # on two threads the samples' test takes the pattern's passes while the cutter
+            # works (the moves binned once with the pencil's filter); on one, all at the end
+            assert (len(fed) > 0) == (t > 1)
+            fed.clear()
     finally:
         numba.set_num_threads(n)
     a, b = (o.report["fill"] for o in out)
@@ -360,3 +369,36 @@ def test_samples_no_grid_ball_reaches_get_a_searched_ball(monkeypatch):
     assert counts0["searched"] == 0 and counts0["reached"] == counts["reached"]
     np.testing.assert_array_equal(B0, B[:n_grid])
     np.testing.assert_array_equal(which0, which[:n_grid])
+
+
+def test_fill_rows_fed_in_parts_give_the_balls_of_all_passes_at_once():
+    # FillRows as the pipeline feeds it: the pattern's passes cut so far (the last in part),
+    # the rest, then the pencil's, each binned once: the same balls, samples and counts as
+    # fill_balls with every pass at once
+    import conformill.fill as fill
+    from conformill.mesh.synthetic import height_field
+    from conformill.pattern_rest import move_grid
+
+    outline = np.array([[-12.0, -12.0], [12.0, -12.0], [12.0, 12.0], [-12.0, 12.0]])
+    m = height_field(outline, lambda x, y: 0.5 * np.sin(0.8 * x) * np.cos(0.7 * y), 0.6, jitter=0.1, seed=4)
+    cut = BallCutter(m.V, m.F, R)
+    h = 0.05
+    gap = math.sqrt(8 * R * 1.6 * h)
+    x = np.linspace(-12.5, 12.5, 120)
+    tips = [cut.tip(np.column_stack([x, np.full_like(x, y), cut.drop(np.column_stack([x, np.full_like(x, y)]))]))
+            for y in np.arange(-12.0, 12.5, gap)]
+    drawn = fill.fill_samples(cut, m.V, m.F)
+    want = fill.fill_balls(cut, drawn, tips, h, depth=0.7)
+    assert len(want[0]) > 0 and want[2]["reached"] > 0
+    n, k = len(tips) // 2, 50
+    early = tips[:n - 1] + [tips[n - 1][:k]]
+    rest = [tips[n - 1][k - 1:]] + tips[n:-2]
+    rows = fill.FillRows(cut, drawn, h, depth=0.7)
+    for part in (early, rest):
+        rows.add_grid(move_grid(*centre_moves(part, R)))
+    rows.add(tips[-2:])  # the passes after, as fill_passes adds them
+    got = rows.balls()
+    np.testing.assert_array_equal(got[0], want[0])
+    np.testing.assert_array_equal(got[1], want[1])
+    assert got[2] == want[2] and got[3] == want[3]
+

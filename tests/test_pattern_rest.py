@@ -198,3 +198,34 @@ def test_hints_change_the_order_not_the_answer(kind):
 def test_hints_of_the_wrong_shape_are_refused():
     with pytest.raises(ValueError, match=r"hints must be \(4, 2\) or \(4, 2, 2\)"):
         pr.UncutRows(np.zeros((4, 2, 3)), R, 0.01, hints=np.zeros((3, 2)))
+
+
+@pytest.mark.parametrize("parts", [1, 3])
+def test_moves_binned_once_serve_rows_of_one_and_of_three_points(parts):
+    # the pipeline bins the pattern's moves once (move_grid) and hands the grid to the
+    # pencil's filter (rows of three probes) and to the fill (one sample a row): each gives
+    # what its own add() of the same moves gives, and brute force
+    A, B, P = _scattered(11, 6, 40, 3000)
+    Q3 = P.reshape(1000, 3, 3)
+    cuts = np.linspace(0, len(A), parts + 1).astype(int)
+    one, three = pr.UncutRows(P, R, 0.05), pr.UncutRows(Q3, R, 0.05)
+    for a, b in zip(cuts[:-1], cuts[1:]):
+        g = pr.move_grid(A[a:b], B[a:b])
+        one.add_grid(g)
+        three.add_grid(g)
+    d = _brute(P, A, B)
+    np.testing.assert_array_equal(one.uncut(), d > R + 0.05)
+    np.testing.assert_array_equal(three.uncut(), (d.reshape(1000, 3) > R + 0.05).any(axis=1))
+    assert 0 < one.uncut().sum() < len(P)
+    empty = pr.move_grid(A[:0], B[:0])  # nothing: no change
+    one.add_grid(empty)
+    np.testing.assert_array_equal(one.uncut(), d > R + 0.05)
+
+
+def test_move_grid_refuses_what_add_refuses():
+    A, B, _ = _scattered(2, 2, 5, 1)
+    with pytest.raises(ValueError, match="as many move starts as ends"):
+        pr.move_grid(A, B[:-1])
+    B[3, 1] = np.inf
+    with pytest.raises(ValueError, match=r"move ends B must be finite; not at rows \[3\]"):
+        pr.move_grid(A, B)

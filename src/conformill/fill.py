@@ -46,8 +46,8 @@ from numba import njit, prange
 
 from conformill.errors import PlanningError
 
-__all__ = ["FILL_DENSITY", "FILL_GIVE", "FILL_SEARCH_NEAR", "FILL_SEED", "FillResult", "fill_balls", "fill_passes",
-           "fill_samples"]
+__all__ = ["FILL_DENSITY", "FILL_GIVE", "FILL_SEARCH_NEAR", "FILL_SEED", "FillResult", "FillRows", "fill_balls",
+           "fill_passes", "fill_samples"]
 
 log = logging.getLogger(__name__)
 
@@ -156,7 +156,7 @@ def _grid_balls(cutter, P, N, density, grid=None):
 
 def fill_passes(cutter, V, F, passes, h: float, *, depth: float, tol: float, link_max: float, start_xy,
                 density: float = FILL_DENSITY, settle_tol: float = 0.0, seed: int = FILL_SEED, give: float = FILL_GIVE,
-                grid=None, samples=None, progress=None) -> FillResult:
+                grid=None, samples=None, rows=None, progress=None) -> FillResult:
     """Fill passes through the balls that reach the surface samples ``passes`` left more
     than ``depth * h`` (see the module's text).
 
@@ -192,6 +192,11 @@ def fill_passes(cutter, V, F, passes, h: float, *, depth: float, tol: float, lin
         What :func:`fill_samples` returned for this part, ``density`` and ``seed``, when
         drawn beforehand (the pipeline draws them once, in the pencil's worker where it
         runs, for the pencil's search and the fill).
+    rows : FillRows, optional
+        The samples' test made beforehand for this cutter, ``h``, ``depth``, ``give`` and
+        ``grid`` on ``samples``, with the passes so far handed over: only those of ``passes``
+        after them are added (:meth:`FillRows.add`; ``passes`` is then only those). The
+        pipeline makes it while the cutter works.
     progress : callable, optional
         ``progress(fraction)``.
 
@@ -210,7 +215,10 @@ def fill_passes(cutter, V, F, passes, h: float, *, depth: float, tol: float, lin
     say = progress or (lambda f: None)
     drawn = fill_samples(cutter, V, F, density, seed) if samples is None else samples
     say(0.1)
-    B, _, counts, g = fill_balls(cutter, drawn, passes, h, depth=depth, give=give, grid=grid)
+    if rows is None:
+        rows = FillRows(cutter, drawn, h, depth=depth, give=give, grid=grid)
+    rows.add(passes)
+    B, _, counts, g = rows.balls()
     say(0.7)
     found = PencilFound(centres=B, probes=np.full((len(B), 1, 3), np.nan), spacing=g, stats={})
     chains = chains_of(cutter, found, 1, settle_tol)
@@ -223,12 +231,74 @@ def fill_passes(cutter, V, F, passes, h: float, *, depth: float, tol: float, lin
     return FillResult(passes=out.passes, stats=stats)
 
 
+class FillRows:
+    """The fill's samples and the test of what the passes left at them, fed with the passes
+    in parts (:meth:`add_grid`; the same balls as :func:`fill_balls` once every pass is in).
+
+    Made, the nearest grid ball of each sample of ``drawn`` is found (:func:`_grid_balls`)
+    and the samples one comes near are kept for the passes' test
+    (:class:`conformill.pattern_rest.UncutRows`, hinted at the tangent balls' XY). Neither
+    needs the passes, so the pipeline makes this, and hands over the pattern's passes cut
+    so far, while the cutter works on the rest, sharing the moves' grid with the pencil's
+    filter (:class:`conformill.pencil.LeftToCut`).
+
+    Parameters
+    ----------
+    cutter, drawn, h, depth, give, grid
+        As for :func:`fill_balls`.
+    """
+
+    def __init__(self, cutter, drawn, h: float, *, depth: float, give: float = FILL_GIVE, grid=None):
+        from conformill.pattern_rest import UncutRows
+
+        self._cutter, self._drawn, self._h, self._give = cutter, drawn, float(h), float(give)
+        r = cutter.radius
+        P, N = drawn.P, drawn.N
+        # the samples a grid ball comes within give of, then those the passes left: the same
+        # balls as the other way round, with the passes' test on fewer samples; and those a grid
+        # ball comes within FILL_SEARCH_NEAR h of, not within give: searched if left
+        self._C, d, self.spacing = _grid_balls(cutter, P, N, drawn.density, grid)
+        self._near = np.flatnonzero(d <= give * h)
+        self._close = np.flatnonzero((d > give * h) & (d <= FILL_SEARCH_NEAR * h))
+        both = np.concatenate([self._near, self._close])
+        self._rows = UncutRows(P[both], r, depth * h, hints=P[both, :2] + r * N[both, :2])  # the tangent balls' XY
+
+    def add(self, passes) -> None:
+        """More tip passes (a list of ``(k, 3)``)."""
+        from conformill.pattern_rest import centre_moves
+
+        self._rows.add(*centre_moves(passes, self._cutter.radius))
+
+    def add_grid(self, grid) -> None:
+        """More passes, as their centre moves binned (:func:`conformill.pattern_rest.move_grid`
+        of :func:`conformill.pattern_rest.centre_moves` with the cutter's radius)."""
+        self._rows.add_grid(grid)
+
+    def balls(self):
+        """The balls after the passes so far: :func:`fill_balls`' ``(centres, which, counts,
+        spacing)``."""
+        from conformill.pencil import best_centres
+
+        left = self._rows.uncut()
+        near, close = self._near, self._close
+        keep = near[left[:near.size]]
+        close = close[left[near.size:]]
+        d = self._drawn
+        Cs, rest, state = best_centres(self._cutter, d.P[close], d.N[close], d.faces[close], low=0.0,
+                                       give_up=self._give * self._h)
+        # state 0: the tangent ball itself comes within low = 0 (its centre, on the drop surface)
+        ok = (state <= 1) & (rest <= self._give * self._h) & np.isfinite(Cs[:, 2])
+        counts = {"reached": int(near.size), "searched": int(close.size), "searched_reached": int(ok.sum())}
+        return np.vstack([self._C[keep], Cs[ok]]), np.concatenate([keep, close[ok]]), counts, self.spacing
+
+
 def fill_balls(cutter, drawn, passes, h: float, *, depth: float, give: float = FILL_GIVE, grid=None):
     """The fill's balls: one per sample of ``drawn`` (a :class:`conformill.pencil.SurfaceDraw`)
     that the tip ``passes`` left more than ``depth * h`` (by the distance bound) and that a
     ball reaches within ``give * h``: the nearest grid ball (:func:`_grid_balls`), or, where
     that one lies beyond the give and within :data:`FILL_SEARCH_NEAR` h, the ball the
     pencil's model search finds from the tangent ball (:func:`conformill.pencil.best_centres`).
+    :class:`FillRows` with all the passes at once.
 
     Returns
     -------
@@ -242,28 +312,9 @@ def fill_balls(cutter, drawn, passes, h: float, *, depth: float, give: float = F
     spacing : float
         The grid's spacing (mm).
     """
-    from conformill.pattern_rest import UncutRows, centre_moves
-    from conformill.pencil import best_centres
-
-    r = cutter.radius
-    P, N = drawn.P, drawn.N
-    # the samples a grid ball comes within give of, then those the passes left: the same
-    # balls as the other way round, with the passes' test on fewer samples; and those a grid
-    # ball comes within FILL_SEARCH_NEAR h of, not within give: searched if left
-    C, d, g = _grid_balls(cutter, P, N, drawn.density, grid)
-    near = np.flatnonzero(d <= give * h)
-    close = np.flatnonzero((d > give * h) & (d <= FILL_SEARCH_NEAR * h))
-    both = np.concatenate([near, close])
-    rows = UncutRows(P[both], r, depth * h, hints=P[both, :2] + r * N[both, :2])  # the tangent balls' XY
-    rows.add(*centre_moves(passes, r))
-    left = rows.uncut()
-    keep = near[left[:near.size]]
-    close = close[left[near.size:]]
-    Cs, rest, state = best_centres(cutter, P[close], N[close], drawn.faces[close], low=0.0, give_up=give * h)
-    # state 0: the tangent ball itself comes within low = 0 (its centre, on the drop surface)
-    ok = (state <= 1) & (rest <= give * h) & np.isfinite(Cs[:, 2])
-    counts = {"reached": int(near.size), "searched": int(close.size), "searched_reached": int(ok.sum())}
-    return np.vstack([C[keep], Cs[ok]]), np.concatenate([keep, close[ok]]), counts, g
+    rows = FillRows(cutter, drawn, h, depth=depth, give=give, grid=grid)
+    rows.add(passes)
+    return rows.balls()
 
 
 def fill_samples(cutter, V, F, density: float = FILL_DENSITY, seed: int = FILL_SEED):

@@ -40,7 +40,7 @@ from numba import njit, prange
 
 from conformill.geometry.closest import segment_d2
 
-__all__ = ["UncutRows", "centre_moves", "uncut_beyond"]
+__all__ = ["MoveGrid", "UncutRows", "centre_moves", "move_grid", "uncut_beyond"]
 
 #: Side of the moves' grid cells (mm), and about the most cells (the cells grow to fit).
 _CELL = 0.5
@@ -193,10 +193,14 @@ def _first_beyond(Q, H, first, reach, A, B, x0, y0, cell, ncx, ncy, start, item,
     return out
 
 
-class _MoveGrid:
-    """The centre moves ``A -> B`` binned on an XY grid (:func:`_bin`), as the kernels take them."""
+class MoveGrid:
+    """Centre moves ``A -> B`` binned on an XY grid (:func:`_bin`), as the kernels take them
+    (``args``): made once by :func:`move_grid` and handed to every :class:`UncutRows` that
+    tests points against those moves (the pencil's filter and the fill read the same
+    pattern passes)."""
 
     def __init__(self, A, B):
+        self.A, self.B = A, B
         if len(A) == 0:  # one empty cell
             self.args = (A, B, 0.0, 0.0, _CELL, 1, 1, np.zeros(2, dtype=np.int64), np.zeros(0, dtype=np.int32),
                          np.full(1, np.inf), np.full(1, -np.inf))
@@ -209,6 +213,18 @@ class _MoveGrid:
         self.args = (A, B, float(lo[0]), float(lo[1]), cell, ncx, ncy, start, item, zlo, zhi)
 
 
+def move_grid(A, B) -> MoveGrid:
+    """The centre moves ``A -> B`` (``(m, 3)`` each, :func:`centre_moves`) binned for
+    :meth:`UncutRows.add_grid`.
+
+    Raises
+    ------
+    ValueError
+        As many starts as ends are not given, or an end is not finite.
+    """
+    return MoveGrid(*_moves(A, B))
+
+
 def _moves(A, B):
     A = np.ascontiguousarray(A, dtype=np.float64).reshape(-1, 3)
     B = np.ascontiguousarray(B, dtype=np.float64).reshape(-1, 3)
@@ -219,6 +235,9 @@ def _moves(A, B):
             bad = np.flatnonzero(~np.isfinite(X).all(axis=1))
             raise ValueError(f"move ends {name} must be finite; not at rows {bad[:5].tolist()}")
     return A, B
+
+
+_EMPTY = MoveGrid(np.zeros((0, 3)), np.zeros((0, 3)))
 
 
 class UncutRows:
@@ -248,20 +267,30 @@ class UncutRows:
         self._H = _hints(self._Q, hints)
         self._first = np.zeros(len(self._Q), dtype=np.int64)
         self._parts = []  # the moves handed over, (A, B) per part
-        self._before = None  # a _MoveGrid of all of them
+        self._before = None  # a MoveGrid of all of them
 
     def add(self, A, B) -> None:
         """Hand over more centre moves (``(m, 3)`` each, :func:`centre_moves`)."""
         A, B = _moves(A, B)
         if len(A) == 0 or len(self._Q) == 0:
             return
-        if self._before is None:  # the moves so far as one grid (none: an empty one)
-            self._before = _MoveGrid(np.vstack([a for a, _ in self._parts]), np.vstack([b for _, b in self._parts])) \
-                if self._parts else _MoveGrid(np.zeros((0, 3)), np.zeros((0, 3)))
-        new = _MoveGrid(A, B)
-        self._first = _first_beyond(self._Q, self._H, self._first, self._reach, *new.args, *self._before.args)
-        self._parts.append((A, B))
-        self._before = new if len(self._parts) == 1 else None  # built again by the next add, if any
+        self.add_grid(MoveGrid(A, B))
+
+    def add_grid(self, grid: MoveGrid) -> None:
+        """Hand over more centre moves already binned (:func:`move_grid`; the same answers
+        as :meth:`add` with its moves)."""
+        if len(grid.A) == 0 or len(self._Q) == 0:
+            return
+        if self._Q.shape[1] == 1:  # one point a row: a point beyond the moves so far is tested on the new ones only
+            before = _EMPTY.args
+        else:
+            if self._before is None:  # the moves so far as one grid (none: an empty one)
+                self._before = _EMPTY if not self._parts else \
+                    MoveGrid(np.vstack([a for a, _ in self._parts]), np.vstack([b for _, b in self._parts]))
+            before = self._before.args
+        self._first = _first_beyond(self._Q, self._H, self._first, self._reach, *grid.args, *before)
+        self._parts.append((grid.A, grid.B))
+        self._before = grid if len(self._parts) == 1 else None  # built again by the next add, if any
 
     def uncut(self) -> np.ndarray:
         """``(n,)`` bool: the rows with a point beyond ``radius + depth`` of every move so far."""

@@ -1079,6 +1079,11 @@ class LeftToCut:
 
         self._rows.add(*centre_moves(passes, self._radius))
 
+    def add_grid(self, grid) -> None:
+        """More passes, as their centre moves binned (:func:`conformill.pattern_rest.move_grid`
+        of :func:`conformill.pattern_rest.centre_moves` with this radius): the same as :meth:`add`."""
+        self._rows.add_grid(grid)
+
     def keep(self) -> np.ndarray:
         """``(k,)`` bool: the centres to cut after the passes so far."""
         keep = ~self._probed

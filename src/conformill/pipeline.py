@@ -817,8 +817,10 @@ def _plan_once(mesh: Mesh, job: Job, progress=None) -> PlanResult:
                 background.link_from(end, e, link_max)
         say("cutter", builder.fraction_cut())
         left, early = None, []  # the pencil's filter and the passes it read while the cutter worked
+        fill_rows = None  # the fill's samples' test, fed with the same passes meanwhile
         shown = ["cutter"]  # the stage the progress shows while the search is waited for
         if background is not None and filtered:
+            from conformill.pattern_rest import centre_moves, move_grid
             from conformill.pencil import LeftToCut
 
             # the pencil's filter reads the passes cut so far while the cutter works on
@@ -842,7 +844,15 @@ def _plan_once(mesh: Mesh, job: Job, progress=None) -> PlanResult:
                 with timer("pencil_left"):
                     left = LeftToCut(found, r_cut, job.pencil_left * h)
                     early = builder.passes_so_far()
-                    left.add(early)
+                    # the moves binned once for the pencil's filter and the fill
+                    early_moves = move_grid(*centre_moves(early, r_cut))
+                    left.add_grid(early_moves)
+                if draw is not None:
+                    from conformill.fill import FillRows
+
+                    with timer("fill"):  # its samples' grid balls and their test of the passes so far
+                        fill_rows = FillRows(builder.cutter, background.drawn(), h, depth=job.fill, grid=found.grid)
+                        fill_rows.add_grid(early_moves)
         t_wait = time.perf_counter()
         passes, pass_ids, lifts, hops = builder.finish(
             progress=(lambda f: say("cutter", f)) if shown[0] == "cutter" else None)
@@ -867,6 +877,7 @@ def _plan_once(mesh: Mesh, job: Job, progress=None) -> PlanResult:
                 if background is not None:  # the worker's time for it, before its search
                     timer.t["fill_draw"] = background.draw_s
         if job.pencil:
+            from conformill.pattern_rest import centre_moves, move_grid
             from conformill.pencil import LeftToCut, chains_of, link_chains, pencil_chains, pencil_search
 
             say("pencil", 0.0)
@@ -881,8 +892,12 @@ def _plan_once(mesh: Mesh, job: Job, progress=None) -> PlanResult:
                         # the moves after those already read: the rest of the last pass
                         # read in part, then the passes after it
                         rest = [passes[len(early) - 1][len(early[-1]) - 1:]] if early else []
-                        left.add(rest + passes[len(early):])
+                        rest_moves = move_grid(*centre_moves(rest + passes[len(early):], r_cut))
+                        left.add_grid(rest_moves)
                         keep = left.keep()
+                    if fill_rows is not None:
+                        with timer("fill"):
+                            fill_rows.add_grid(rest_moves)
                     cut = keep & found.probed
                     n_fold = found.stats["centres"]  # the fold points, then the steep centres
                     found = replace(found, stats={**found.stats, "left_h": float(job.pencil_left),
@@ -900,16 +915,18 @@ def _plan_once(mesh: Mesh, job: Job, progress=None) -> PlanResult:
                     found = pencil_chains(cutter, *search_args, **search_kw, **chain_kw, drawn=drawn,
                                           progress=lambda f: say("pencil", 0.9 * f))
                     pencil = link_chains(cutter, found, e, link_max, start)
+                n_pattern = len(passes)
                 passes, pass_ids, hops = _after(cutter, passes, pass_ids, hops, pencil.passes, job.hop_lift > 0)
         fill = None
         if job.fill is not None:
             say("fill", 0.0)
             with timer("fill"):
                 start = passes[-1][-1, :2] if passes else mesh.V[:, :2].mean(axis=0)
-                fill = fill_passes(cutter, mesh.V, mesh.F, passes, h, depth=job.fill, tol=e, link_max=link_max,
-                                   start_xy=start, density=FILL_DENSITY, seed=FILL_SEED, settle_tol=job.settle * h,
-                                   grid=fold_grid, samples=drawn,
-                                   progress=lambda f: say("fill", f))
+                # with the samples' test made while the cutter worked: only the pencil's passes are new to it
+                fill = fill_passes(cutter, mesh.V, mesh.F, passes if fill_rows is None else passes[n_pattern:], h,
+                                   depth=job.fill, tol=e, link_max=link_max, start_xy=start, density=FILL_DENSITY,
+                                   seed=FILL_SEED, settle_tol=job.settle * h, grid=fold_grid, samples=drawn,
+                                   rows=fill_rows, progress=lambda f: say("fill", f))
                 passes, pass_ids, hops = _after(cutter, passes, pass_ids, hops, fill.passes, job.hop_lift > 0)
     if stock:  # the tips so far are those of the ball of radius r_cut: the ball of radius r is stock higher
         lift = np.array([0.0, 0.0, stock])

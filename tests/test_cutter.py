@@ -660,6 +660,26 @@ def _max_dip(cut, P, spacing=0.01):
     return worst
 
 
+def _split_whole(cut, P, seg, thresh, track, max_levels=60):
+    """The halving of ``BallCutter._split_safe`` as it was up to session 63: each level over
+    the whole polyline (the reference its move-by-move form must match)."""
+    from conformill.cutter import _insert
+
+    l_safe = cut._l_safe(thresh)
+    check = np.zeros(len(P) - 1, dtype=bool)
+    check[seg] = True
+    for _ in range(max_levels):
+        d = np.diff(P, axis=0)
+        long_ = check & (np.linalg.norm(d, axis=1) > l_safe) & (np.hypot(d[:, 0], d[:, 1]) > 1e-9)
+        if not long_.any():
+            break
+        s = np.flatnonzero(long_)
+        mid = 0.5 * (P[s] + P[s + 1])
+        mid[:, 2] = np.maximum(cut.drop(mid[:, :2]), mid[:, 2])
+        P, check, track = _insert(P, s, mid, track)
+    return P, track
+
+
 def _is_subsequence(P, Q):
     """Every row of P appears in Q, in order."""
     j = 0
@@ -703,6 +723,39 @@ class TestRefine:
         assert np.linalg.norm(np.diff(Q, axis=0), axis=1).max() <= l_safe
         assert np.all(Q[:, 2] >= cut.drop(Q[:, :2]) - 1e-12)
         assert _max_dip(cut, Q) <= tol
+
+    def test_safe_pieces_move_by_move(self, caplog):
+        # a plateau 10 mm above a floor, 20 mm wide: the drop surface jumps by 6 mm where
+        # the ball leaves the plateau's rim (4 mm beyond its edge). A move from a point
+        # just off the rim, on the floor's side (as the pencil's fold crossings sit), onto
+        # the plateau keeps a 6 mm piece until its XY extent vanishes (about 30 levels).
+        # Halving each move on its own points gives the points, and the tracked rows, of
+        # halving the whole polyline level by level
+        lo = syn.plane(size=60.0, spacing=2.0, z=0.0)
+        hi = syn.plane(size=20.0, spacing=2.0, z=10.0)
+        cut = BallCutter(np.vstack([lo.V, hi.V]), np.vstack([lo.F, hi.F + len(lo.V)]), R_BALL)
+        xy = np.array([[-25, -3], [-14 - 1e-10, 0.5], [2, 1], [18, 2.5], [22, 3], [6, 5], [-20, 6], [-20, 6],
+                       [-24, 9]])
+        P = np.column_stack([xy, cut.drop(xy)])
+        thresh = 0.005
+        track = np.array([0, 2, 3, 6, 7, 8, 9], dtype=np.int64)
+        for seg in (np.arange(len(P) - 1), np.array([0, 2, 3]), np.array([3]), np.array([6, 7])):
+            got, got_track = cut._split_safe(P, seg, thresh, track)
+            want, want_track = _split_whole(cut, P, seg, thresh, track)
+            np.testing.assert_array_equal(got, want)
+            np.testing.assert_array_equal(got_track, want_track)
+            np.testing.assert_array_equal(got[got_track[:-1]], P[track[:-1]])
+            assert _is_subsequence(P, got)
+            if 1 in seg:  # the rim's move needed the levels: a piece under a micron in XY
+                step = np.hypot(*np.diff(got[:, :2], axis=0).T)
+                assert 0 < step[step > 0].min() < 1e-6
+        # and through refine: every move undecided, every piece safe
+        with caplog.at_level("WARNING", logger="conformill.cutter"):
+            Q = cut.refine(P, 0.01, max_points=0)
+        assert "still unchecked" in caplog.text and "after" not in caplog.text
+        want, _ = _split_whole(cut, P, np.flatnonzero(np.hypot(*np.diff(P, axis=0)[:, :2].T) > 1e-9), thresh,
+                               np.zeros(0, dtype=np.int64))
+        np.testing.assert_array_equal(Q, want)
 
     @pytest.mark.parametrize("max_points", [1, 3, 8, 9, 256])
     def test_room_per_move(self, max_points, caplog):

@@ -1675,28 +1675,52 @@ class BallCutter:
         return 2.0 * math.sqrt(thresh * (2.0 * self.radius - thresh))
 
     def _split_safe(self, P, seg, thresh, track, max_levels: int = 60):
-        """Halve moves ``seg`` until every piece is at most ``L_safe`` long (3D).
+        """Halve moves ``seg`` (sorted) until every piece is at most ``L_safe`` long (3D).
 
         The midpoints are lifted onto the drop surface where the chord lies below it, so
         every piece has its ends on or above the drop surface; such a piece no longer than
         ``L_safe`` cannot cut more than ``thresh`` into the part (the bound of
         :meth:`refine` with ``d0 = d1 = 0``). Moves with (almost) no XY extent are not
         split, as in :meth:`refine`.
+
+        Each move is halved on its own (its pieces do not depend on the other moves), so
+        the levels run on the moves' own points and the pieces go into ``P`` once: a move
+        down a wall of the drop surface (a near-vertical jump, halved until its XY extent
+        vanishes: about 30 levels) no longer costs 30 passes over the whole polyline
+        (igea's pencil passes, 52k points: 0.09-0.12 s for one to seven such moves).
         """
         l_safe = self._l_safe(thresh)
-        check = np.zeros(len(P) - 1, dtype=bool)
-        check[seg] = True
+        seg = np.asarray(seg, dtype=np.int64)
+        m = len(seg)
+        # the moves side by side: each its two ends, the step from one to the next unchecked
+        Q = np.empty((2 * m, 3), dtype=np.float64)
+        Q[0::2], Q[1::2] = P[seg], P[seg + 1]
+        check = np.zeros(2 * m - 1, dtype=bool)
+        check[0::2] = True
+        ends = np.arange(0, 2 * m, 2, dtype=np.int64)  # each move's first point in Q
+        done = False
         for _ in range(max_levels):
-            d = np.diff(P, axis=0)
+            d = np.diff(Q, axis=0)
             long_ = check & (np.linalg.norm(d, axis=1) > l_safe) & (np.hypot(d[:, 0], d[:, 1]) > 1e-9)
             if not long_.any():
-                return P, track
+                done = True
+                break
             s = np.flatnonzero(long_)
-            mid = 0.5 * (P[s] + P[s + 1])
+            mid = 0.5 * (Q[s] + Q[s + 1])
             mid[:, 2] = np.maximum(self.drop(mid[:, :2]), mid[:, 2])
-            P, check, track = _insert(P, s, mid, track)
-        log.warning("cutter.refine: %d moves still longer than L_safe after %d halvings",
-                    int(long_.sum()), max_levels)
+            Q, check, ends = _insert(Q, s, mid, ends)
+        if not done:
+            log.warning("cutter.refine: %d moves still longer than L_safe after %d halvings",
+                        int(long_.sum()), max_levels)
+        # the points each move gained, in order, go in after its first point
+        last = np.append(ends[1:], len(Q)) - 1  # each move's last point in Q
+        inner = np.ones(len(Q), dtype=bool)
+        inner[ends] = False
+        inner[last] = False
+        count = last - ends - 1
+        if not count.any():
+            return P, track
+        P, _, track = _insert(P, np.repeat(seg, count), Q[inner], track)
         return P, track
 
     # ------------------------------------------------------------------ tool tip

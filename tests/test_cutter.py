@@ -739,6 +739,9 @@ class TestRefine:
         P = np.column_stack([xy, cut.drop(xy)])
         thresh = 0.005
         track = np.array([0, 2, 3, 6, 7, 8, 9], dtype=np.int64)
+        same, same_track = cut._split_safe(P, np.zeros(0, dtype=np.int64), thresh, track)  # no moves: nothing
+        np.testing.assert_array_equal(same, P)
+        np.testing.assert_array_equal(same_track, track)
         for seg in (np.arange(len(P) - 1), np.array([0, 2, 3]), np.array([3]), np.array([6, 7])):
             got, got_track = cut._split_safe(P, seg, thresh, track)
             want, want_track = _split_whole(cut, P, seg, thresh, track)

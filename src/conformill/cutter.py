@@ -1692,6 +1692,8 @@ class BallCutter:
         l_safe = self._l_safe(thresh)
         seg = np.asarray(seg, dtype=np.int64)
         m = len(seg)
+        if m == 0:
+            return P, track
         # the moves side by side: each its two ends, the step from one to the next unchecked
         Q = np.empty((2 * m, 3), dtype=np.float64)
         Q[0::2], Q[1::2] = P[seg], P[seg + 1]

@@ -1121,6 +1121,24 @@ class TestSettle:
         with pytest.raises(PlanningError, match="settle tolerance must be positive"):
             cut.settle_pieces(pieces, -1.0)
 
+    @pytest.mark.parametrize("method", ["settle_pieces", "refine_pieces"])
+    def test_pieces_checked_as_one_polyline_is(self, method):
+        # the batch checks its pieces stacked; a bad piece gets the message one call on it gets
+        m = syn.plane(size=20.0, spacing=5.0)
+        cut = BallCutter(m.V, m.F, R_BALL)
+        run = getattr(cut, method)
+        good = np.array([[0.0, 0.0, 4.0], [1.0, 0.0, 4.0]])
+        nan = np.array([[0.0, 0.0, 4.0], [1.0, np.nan, 4.0], [2.0, 0.0, np.inf]])
+        with pytest.raises(PlanningError, match=r"centers has 2 non-finite rows \(first: row 1\)"):
+            run([good, good, nan, good], 0.01)
+        with pytest.raises(PlanningError, match=r"centers must be \(k, 3\), got shape \(3,\)"):
+            run([good, good[0], nan], 0.01)
+        with pytest.raises(PlanningError, match=r"centers must be \(k, 3\), got shape \(2, 2\)"):
+            run([good, good[:, :2]], 0.01)
+        # integers are points too, as for one polyline
+        out = run([good.astype(int), good], 0.01)
+        np.testing.assert_array_equal((out[0] if method == "settle_pieces" else out)[0], good)
+
     def test_contacts_of_short_inputs(self):
         m = syn.plane(size=20.0, spacing=5.0)
         cut = BallCutter(m.V, m.F, R_BALL)

@@ -1762,11 +1762,21 @@ def _refine_args(tol, max_points, max_depth) -> tuple:
 def _stack_pieces(pieces):
     """Polylines stacked: ``(P, check, starts)`` with ``check`` flagging the moves inside
     a piece that have an XY extent (not the step from one piece's end to the next's start)
-    and ``starts`` the index of each piece's first point."""
-    arrs = [_as_points(c, 3, "centers") for c in pieces]
+    and ``starts`` the index of each piece's first point.
+
+    The pieces are checked as :func:`_as_points` checks each (the same error for the
+    first bad one), but stacked first and tested for non-finite values once: a check per
+    piece cost about 12 us, 0.02 s for the pencil's 1900 chains in the plan's serial tail.
+    """
+    arrs = [np.asarray(c, dtype=np.float64) for c in pieces]
+    if not all(a.ndim == 2 and a.shape[1] == 3 for a in arrs):
+        arrs = [_as_points(c, 3, "centers") for c in arrs]  # raises, naming the first bad piece's shape
+    P = np.vstack(arrs)
+    if not np.isfinite(P).all():
+        for c in arrs:
+            _as_points(c, 3, "centers")  # raises, naming the first bad piece's rows
     lens = np.array([len(c) for c in arrs], dtype=np.int64)
     starts = np.concatenate([[0], np.cumsum(lens)[:-1]]).astype(np.int64)
-    P = np.vstack(arrs)
     d = np.diff(P, axis=0)
     check = np.hypot(d[:, 0], d[:, 1]) > 1e-9
     b = starts[1:]

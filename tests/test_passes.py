@@ -425,3 +425,26 @@ def test_feed_length_sums_the_moves_of_each_pass_not_the_joins():
     lone = np.array([[7.0, 7.0, 7.0]])  # one point: no move
     assert feed_length([a, b, lone]) == pytest.approx(19.0, abs=1e-12)
     assert feed_length([]) == 0.0 and isinstance(feed_length([]), float)
+
+
+@pytest.mark.parametrize("layer, threads, overlap, warns", [("omp", 2, True, False), ("tbb", 2, True, False),
+                                                            ("workqueue", 2, False, True),
+                                                            ("workqueue", 1, False, False)])
+def test_threading_layer_decides_the_overlap_and_workqueue_is_named(monkeypatch, caplog, layer, threads, overlap,
+                                                                    warns):
+    """Only ``omp`` and ``tbb`` let the cutter's worker run beside the pattern stage; under
+    ``workqueue`` on several threads the plan says why it is slower, once per process."""
+    import numba
+
+    import conformill.passes as passes
+
+    monkeypatch.setattr(numba, "threading_layer", lambda: layer)
+    monkeypatch.setattr(numba, "get_num_threads", lambda: threads)
+    monkeypatch.setattr(passes, "_warned_layer", False)
+    with caplog.at_level("WARNING", logger="conformill.passes"):
+        assert threads_can_overlap() is overlap
+        assert threads_can_overlap() is overlap
+    said = [r.getMessage() for r in caplog.records if "threading layer" in r.getMessage()]
+    assert len(said) == (1 if warns else 0)
+    if warns:
+        assert "'workqueue'" in said[0] and "libgomp.so.1" in said[0]

@@ -42,9 +42,8 @@ def run_rs274(program, tmp_path, name="prog"):
     canon = tmp_path / f"{name}.canon"
     env = {k: v for k, v in os.environ.items() if k != "DISPLAY"}
     with open(os.devnull, "rb") as devnull:
-        # looked up again: a caller in another module checks ``which`` itself, and rs274 may
-        # have been installed after this module was imported
-        proc = subprocess.run([RS274 or shutil.which("rs274"), "-g", str(nc), str(canon)], stdin=devnull, capture_output=True,
+        # looked up at the call: rs274 may have been installed after this module was imported
+        proc = subprocess.run([shutil.which("rs274"), "-g", str(nc), str(canon)], stdin=devnull, capture_output=True,
                               text=True, env=env, timeout=300)
     text = canon.read_text() if canon.exists() else ""
     return proc.returncode, proc.stdout + proc.stderr, text

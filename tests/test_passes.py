@@ -440,7 +440,7 @@ def test_threading_layer_decides_the_overlap_and_workqueue_is_named(monkeypatch,
 
     monkeypatch.setattr(numba, "threading_layer", lambda: layer)
     monkeypatch.setattr(numba, "get_num_threads", lambda: threads)
-    monkeypatch.setattr(passes, "_warned_layer", False)
+    passes._warn_layer.cache_clear()  # as in a new process
     with caplog.at_level("WARNING", logger="conformill.passes"):
         assert threads_can_overlap() is overlap
         assert threads_can_overlap() is overlap

@@ -17,6 +17,7 @@ before gives, point for point, what one call on the whole pass gives.
 from __future__ import annotations
 
 import collections
+import functools
 import logging
 import queue
 import threading
@@ -85,7 +86,6 @@ def threads_can_overlap() -> bool:
     per process: the stages then run one after the other, about a third slower (igea
     ``--scan`` contour, session 66: 11.0-11.9 s against 7.9-8.8 s under ``omp``).
     """
-    global _warned_layer
     import numba
 
     if numba.get_num_threads() < 2:
@@ -95,17 +95,19 @@ def threads_can_overlap() -> bool:
     except ValueError:  # no parallel kernel has run yet: run one, so that numba picks its layer
         _touch(np.zeros(2))
         layer = numba.threading_layer()
-    if layer not in ("tbb", "omp"):
-        if not _warned_layer:
-            _warned_layer = True
-            log.warning("numba runs its %r threading layer (its OpenMP layer needs the system's libgomp.so.1, "
-                        "e.g. Debian's libgomp1): the cutter cannot work beside the pattern stage, and plans take "
-                        "about a third longer (the same program)", layer)
-        return False
-    return True
+    if layer in ("tbb", "omp"):
+        return True
+    _warn_layer(layer)
+    return False
 
 
-_warned_layer = False  # threads_can_overlap's warning given in this process
+@functools.cache
+def _warn_layer(layer: str) -> None:
+    """:func:`threads_can_overlap`'s warning for a layer that cannot overlap the stages,
+    once per process."""
+    log.warning("numba runs its %r threading layer (its OpenMP layer needs the system's libgomp.so.1, "
+                "e.g. Debian's libgomp1): the cutter cannot work beside the pattern stage, and plans take "
+                "about a third longer (the same program)", layer)
 
 
 #: How much lower (``nice`` steps) the background threads run than the caller's thread.

@@ -5,8 +5,13 @@ r = 4, h = 0.01, e = 0.01, each pattern's *whole* ``conformill plan`` process (r
 parameterize, frame, paths, cutter, G-code) should take at most 1.5x one ``igl.harmonic``
 call (cotangent weights, circle boundary) and peak under 4 GB.
 
-Each run is a fresh subprocess (peak RSS from ``os.wait4``); conformill and igl runs are
-interleaved so that background load hits both alike. Untimed warm-up runs first (a small
+Each run is a fresh subprocess (peak RSS, CPU times and minor page faults from
+``os.wait4``); conformill and igl runs are interleaved so that background load hits both
+alike. The system time is printed because it swings: on the Firecracker VMs these
+benchmarks run on, a page of guest memory never touched before costs about 30 times a
+reused one (session 68: 1 GiB first touched in 2.9 s, then 0.08-0.10 s in the next
+process), so a plan that happens to get fresh pages pays seconds of system time (the
+620k zigzag: 1.0-4.4 s over six commands, at 242k-247k faults each). Untimed warm-up runs first (a small
 plan per pattern on ``sample:patch``, one igl run), so that compiling the numba kernels on a
 fresh install does not land in the first row. The stage timings come from the
 plan's JSON report.
@@ -79,15 +84,15 @@ def main(argv=None) -> int:
                    "--tolerance", str(args.tolerance), "--spacing", args.spacing, "-o", nc, "--report", rep, "-q",
                    *shlex.split(args.plan_args)]
             for _ in range(args.repeat):
-                w_igl, rss_igl, out = run_child(igl_cmd)
+                w_igl, rss_igl, out, ru_igl = run_child(igl_cmd, rusage=True)
                 h_igl = float(out.split("HARMONIC")[1].split()[0])
-                w, rss, _ = run_child(cmd)
+                w, rss, _, ru = run_child(cmd, rusage=True)
                 r = json.loads(Path(rep).read_text())
-                rows.append((pat, w, rss, h_igl, w_igl, r))
+                rows.append((pat, w, rss, h_igl, w_igl, r, ru))
                 t = r["timings_s"]
                 stages = ", ".join(f"{k} {v:.1f}" for k, v in t.items() if k != "total")
-                print(f"{pat:8s} plan {w:6.1f} s  peak {rss:6.0f} MB | igl.harmonic {h_igl:5.2f} s "
-                      f"(its process {w_igl:5.1f} s, {rss_igl:5.0f} MB) | ratio {w / h_igl:5.2f} "
+                print(f"{pat:8s} plan {w:6.1f} s  peak {rss:6.0f} MB ({_cpu(ru)}) | igl.harmonic {h_igl:5.2f} s "
+                      f"(its process {w_igl:5.1f} s, {rss_igl:5.0f} MB, {_cpu(ru_igl)}) | ratio {w / h_igl:5.2f} "
                       f"(target <= 1.5) | {r['program']['cut_points']} CL points, "
                       f"{r['program']['feed_length_mm'] / 1000:.1f} m | {stages}", flush=True)
         # after every timed run: a child forked from a parent that holds the mesh and the
@@ -103,15 +108,22 @@ def main(argv=None) -> int:
                   f"{c['p999']:.3f} h, p99 {c['p99']:.3f} h, uncut {100 * c['uncut']:.3f} %, "
                   f"gouge max {1000 * c['gouge']:.1f} um", flush=True)
     print()
-    head = "| pattern | plan process (s) | peak RSS (MB) | igl.harmonic (s) | ratio | CL points | feed (m) |"
+    head = ("| pattern | plan process (s) | its user / system CPU (s) | minor page faults | peak RSS (MB) | "
+            "igl.harmonic (s) | ratio | CL points | feed (m) |")
     print(head + (" reachable p99.9 / h | p99 / h | gouge max (um) |" if checks else ""))
-    print("|---|---|---|---|---|---|---|" + ("---|---|---|" if checks else ""))
-    for pat, w, rss, h_igl, _, r in rows:
+    print("|---|---|---|---|---|---|---|---|---|" + ("---|---|---|" if checks else ""))
+    for pat, w, rss, h_igl, _, r, ru in rows:
         c = checks.get(pat)
         tail = f" {c['p999']:.3f} | {c['p99']:.3f} | {1000 * c['gouge']:.1f} |" if c else ""
-        print(f"| {pat} | {w:.1f} | {rss:.0f} | {h_igl:.2f} | {w / h_igl:.1f} | {r['program']['cut_points']} | "
+        print(f"| {pat} | {w:.1f} | {ru.ru_utime:.1f} / {ru.ru_stime:.1f} | {ru.ru_minflt} | {rss:.0f} | "
+              f"{h_igl:.2f} | {w / h_igl:.2f} | {r['program']['cut_points']} | "
               f"{r['program']['feed_length_mm'] / 1000:.1f} |" + tail)
     return 0
+
+
+def _cpu(ru) -> str:
+    """A child's CPU times and minor page faults, from its ``resource.struct_rusage``."""
+    return f"user {ru.ru_utime:.1f} s, sys {ru.ru_stime:.1f} s, {ru.ru_minflt / 1000:.0f}k faults"
 
 
 def _verify(args, mesh, nc: str) -> dict:

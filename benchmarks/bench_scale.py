@@ -10,11 +10,12 @@ Each run is a fresh subprocess (peak RSS, CPU times and minor page faults from
 alike. The system time is printed because it swings: on the Firecracker VMs these
 benchmarks run on, a page of guest memory never touched before costs about 30 times a
 reused one (session 68: 1 GiB first touched in 2.9 s, then 0.08-0.10 s in the next
-process), so a plan that happens to get fresh pages pays seconds of system time (the
-620k zigzag: 1.0-4.4 s over six commands, at 242k-247k faults each). Untimed warm-up runs first (a small
-plan per pattern on ``sample:patch``, one igl run), so that compiling the numba kernels on a
-fresh install does not land in the first row. The stage timings come from the
-plan's JSON report.
+processes), so a plan that happens to get fresh pages pays seconds of system time (the
+620k zigzag: 1.0-4.4 s over six commands, at 241k-247k faults in the five counted).
+
+Untimed warm-up runs first (a small plan per pattern on ``sample:patch``, one igl run), so
+that compiling the numba kernels on a fresh install does not land in the first row. The
+stage timings come from the plan's JSON report.
 
     python benchmarks/bench_scale.py [MESH] [--scale 1400] [--patterns zigzag contour spiral]
         [--h 0.01] [--repeat 1] [--spacing adaptive|paper|local] [--subdivide K] [--verify N]

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import shutil
 import subprocess
 import sys
 
@@ -13,6 +12,7 @@ import trimesh
 
 from conformill.cli.main import main
 from conformill.mesh import synthetic
+from test_gcode_rs274 import _assert_clean, needs_rs274, run_rs274
 
 
 @pytest.fixture(scope="module")
@@ -173,11 +173,9 @@ def test_plan_is_deterministic(part, tmp_path):
     assert a.read_bytes() == b.read_bytes()
 
 
-@pytest.mark.skipif(shutil.which("rs274") is None, reason="rs274 (linuxcnc-uspace) is not installed")
+@needs_rs274
 @pytest.mark.parametrize("pattern", ["zigzag", "contour", "spiral"])
 def test_plan_programs_run_in_linuxcnc(part, tmp_path, pattern):
-    from test_gcode_rs274 import _assert_clean, run_rs274
-
     out = tmp_path / "p.nc"
     assert main(["plan", str(part), "--pattern", pattern, "--tool-radius", "4", "--scallop", "0.3",
                  "-o", str(out), "-q"]) == 0

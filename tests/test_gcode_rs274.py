@@ -28,8 +28,10 @@ import pytest
 from conformill.output.gcode import format_gcode, write_gcode
 from conformill.types import ToolPath
 
-RS274 = shutil.which("rs274")
-pytestmark = pytest.mark.skipif(RS274 is None, reason="rs274 (linuxcnc-uspace) is not installed")
+#: Skips where ``rs274`` is not installed: this module, and the tests of other modules that
+#: run programs through :func:`run_rs274`
+needs_rs274 = pytest.mark.skipif(shutil.which("rs274") is None, reason="rs274 (linuxcnc-uspace) is not installed")
+pytestmark = needs_rs274
 
 _CANON = re.compile(r"(STRAIGHT_TRAVERSE|STRAIGHT_FEED)\(([^)]*)\)")
 

@@ -17,6 +17,7 @@ from conformill.pipeline import Job, plan
 from conformill.types import ToolPath
 from conformill.verify.gcode import read_gcode
 from conformill.verify.simulate import rapid_clearance, segment_triangle_distance, verify
+from test_gcode_rs274 import _assert_clean, needs_rs274, run_rs274
 
 R = 4.0
 
@@ -216,17 +217,8 @@ def test_cli_header_names_the_hops_only_when_on(tmp_path):
     assert "hop" not in off.read_text()
 
 
+@needs_rs274
 def test_linuxcnc_accepts_a_hopped_program(tmp_path):
-    import shutil
-
-    if shutil.which("rs274") is None:
-        pytest.skip("rs274 (linuxcnc-uspace) is not installed")
-    import sys
-    from pathlib import Path
-
-    sys.path.insert(0, str(Path(__file__).parent))
-    from test_gcode_rs274 import _assert_clean, run_rs274
-
     res = plan(GROOVE, _job("contour", 0.5))
     assert res.report["cutter"]["hops"]["hops"] > 0
     path = tmp_path / "hop.nc"
